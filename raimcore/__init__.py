@@ -1,0 +1,25 @@
+"""RAIM Studio core: GNSS integrity monitoring algorithms, headless.
+
+Shape rule (one for the whole package): batch axes first, components last. A position is
+``(..., 3)``, satellite positions are ``(..., n_sat, 3)``, a geometry matrix is
+``(..., m, n)`` and a measurement vector ``(..., m)``. Every kernel accepts any number of
+leading batch axes (epochs, Monte Carlo runs, ...). SI units and radians inside; degrees
+only at the edges (CLI, files, GUI).
+
+Modules
+-------
+geometry        WGS-84 conversions, lines of sight, DOPs
+constellations  nominal GPS / BeiDou constellations, YUMA almanacs, Keplerian propagation
+trajectories    static, straight-line and flight-profile receivers
+noise           Gaussian, Gaussian-mixture and Student-t pseudorange noise
+faults          step and ramp faults on any set of satellites
+measurements    simulated pseudoranges
+lsq             batched iterative weighted least squares
+parity          parity-vector detection, isolation and reconstruction (seed 000)
+scenario        scenario descriptions and the per-epoch engine
+algorithms      the registry of RAIM algorithms
+
+``import raimcore`` never imports a GUI library (viser, plotly).
+"""
+
+__version__ = "0.1.0"
