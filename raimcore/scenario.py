@@ -1,0 +1,463 @@
+"""Scenario descriptions and the engine that turns one into a per-epoch result table.
+
+A :class:`Scenario` is flat: every key is a top-level field, so a TOML file, a CLI
+``--set key=value`` and a dashboard control all address the same names. Named scenarios
+are TOML files shipped in ``raimcore/scenarios/``. Algorithm options are scenario keys too:
+each registered algorithm declares its own (``AlgorithmSpec.options``).
+
+Pipeline: :func:`build_epoch_data` (constellation, trajectory, visibility, noise, faults,
+baro) -> ``algorithm.run`` -> :func:`make_table` (errors in the local frame, theoretical
+detection probability, truth) -> :class:`ScenarioResult`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field, fields
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import algorithms
+from ._validate import check_choice, check_int, check_positive, check_probability, check_range
+from .algorithms.base import AlgorithmOutput, EpochData
+from .constellations import builtin, read_yuma
+from .faults import Fault, fault_biases
+from .geometry import ecef_to_enu
+from .lsq import clock_columns, geometry_rows
+from .noise import NOISE_KINDS, make_noise
+from .parity import _whitened_projector, detection_probability
+from .table import ResultTable
+from .trajectories import TRAJECTORY_KINDS, flight_profile, static, straight_line
+
+__all__ = ["Scenario", "ScenarioResult", "Restrict", "load_scenario", "list_scenarios",
+           "build_epoch_data", "run_scenario", "make_table", "parse_value", "summarize"]
+
+
+@dataclass(frozen=True)
+class Restrict:
+    """Between ``t0_s`` and ``t1_s`` only the satellites ``sats`` are tracked."""
+
+    sats: tuple[str, ...]
+    t0_s: float = 0.0
+    t1_s: float = math.inf
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One scenario. All fields are scenario-file / ``--set`` keys (SI units, degrees).
+
+    Constellation and time: ``systems`` (GPS, BDS), ``constellation`` ("nominal" or a
+    YUMA almanac path), ``sats`` (subset to use; empty = all), ``rename`` (old -> new name),
+    ``t_start_s`` (constellation time at t = 0), ``duration_s``, ``step_s``.
+    Receiver: ``trajectory`` (static | line | flight), ``lat_deg``, ``lon_deg``,
+    ``height_m``, ``speed_mps``, ``heading_deg``, ``climb_mps`` (line), ``cruise_speed_mps``,
+    ``cruise_alt_m``, ``climb_s``, ``turn_start_s``, ``turn_rate_dps``, ``turn_deg``
+    (flight); ``clock_drift_mps``.
+    Measurements: ``mask_deg``, ``sigma_m``, ``noise`` (gaussian | mixture | student-t),
+    ``mixture_eps``, ``mixture_scale``, ``student_nu``, ``faults``, ``restrict``, ``baro``,
+    ``sigma_baro_m``.
+    Integrity: ``algorithm``, ``p_fa``, ``p_md``, ``hal_m``, ``val_m``, ``seed``;
+    algorithm-specific keys land in ``options``.
+    """
+
+    name: str = "custom"
+    description: str = ""
+    systems: tuple[str, ...] = ("GPS",)
+    constellation: str = "nominal"
+    sats: tuple[str, ...] = ()
+    rename: tuple[tuple[str, str], ...] = ()
+    t_start_s: float = 0.0
+    duration_s: float = 100.0
+    step_s: float = 1.0
+    trajectory: str = "static"
+    lat_deg: float = 30.67
+    lon_deg: float = 104.06
+    height_m: float = 500.0
+    speed_mps: float = 0.0
+    heading_deg: float = 90.0
+    climb_mps: float = 0.0
+    cruise_speed_mps: float = 230.0
+    cruise_alt_m: float = 10000.0
+    climb_s: float = 900.0
+    turn_start_s: float = 2400.0
+    turn_rate_dps: float = 1.5
+    turn_deg: float = 180.0
+    clock_drift_mps: float = 0.0
+    mask_deg: float = 5.0
+    sigma_m: float = 33.0
+    noise: str = "gaussian"
+    mixture_eps: float = 0.1
+    mixture_scale: float = 5.0
+    student_nu: float = 3.0
+    faults: tuple[Fault, ...] = ()
+    restrict: tuple[Restrict, ...] = ()
+    baro: bool = False
+    sigma_baro_m: float = 50.0
+    algorithm: str = "parity"
+    p_fa: float = 1e-3
+    p_md: float = 1e-3
+    hal_m: float = 556.0
+    val_m: float = 1000.0
+    seed: int = 0
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self):
+        _validate(self)
+
+    # -- convenience -------------------------------------------------------------------
+    def replace(self, **changes) -> Scenario:
+        """A copy with ``changes`` applied; keys may be fields or algorithm options."""
+        return from_dict({**self.to_dict(), **changes})
+
+    def with_faults(self, *faults: Fault) -> Scenario:
+        return dataclasses.replace(self, faults=tuple(faults))
+
+    def option(self, key: str, default=None):
+        return dict(self.options).get(key, default)
+
+    def algorithm_options(self) -> dict[str, Any]:
+        """The options of the chosen algorithm: its defaults, overridden by this scenario."""
+        spec = algorithms.get(self.algorithm)
+        return {**dict(spec.options), **{k: v for k, v in self.options if k in spec.options}}
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (TOML-like) form; ``from_dict(s.to_dict()) == s``."""
+        d: dict[str, Any] = {}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "faults":
+                v = [x.to_dict() for x in v]
+            elif f.name == "restrict":
+                v = [{"sats": list(r.sats), "t0_s": r.t0_s,
+                      **({"t1_s": r.t1_s} if math.isfinite(r.t1_s) else {})} for r in v]
+            elif f.name == "rename":
+                v = dict(v)
+            elif f.name == "options":
+                continue
+            elif isinstance(v, tuple):
+                v = list(v)
+            d[f.name] = v
+        d.update(dict(self.options))
+        return d
+
+
+_FIELD_NAMES = {f.name for f in fields(Scenario)}
+
+
+def _option_keys() -> dict[str, Any]:
+    keys: dict[str, Any] = {}
+    for name in algorithms.names():
+        keys.update(algorithms.get(name).options)
+    return keys
+
+
+def from_dict(d: dict[str, Any]) -> Scenario:
+    """Build a :class:`Scenario` from a TOML-like dict; unknown keys raise ``ValueError``."""
+    d = dict(d)
+    opts = dict(d.pop("options", {}) or {})
+    known_opts = _option_keys()
+    kw: dict[str, Any] = {}
+    for key, val in d.items():
+        if key in _FIELD_NAMES:
+            kw[key] = val
+        elif key in known_opts:
+            opts[key] = val
+        else:
+            allowed = sorted(_FIELD_NAMES - {"options"}) + sorted(known_opts)
+            raise ValueError(f"unknown scenario key {key!r}; allowed keys: {', '.join(allowed)}")
+    bad = [k for k in opts if k not in known_opts]
+    if bad:
+        raise ValueError(f"unknown algorithm option(s) {', '.join(bad)}; allowed: "
+                         f"{', '.join(sorted(known_opts))}")
+    if "faults" in kw:
+        kw["faults"] = tuple(f if isinstance(f, Fault) else _fault_from_dict(f)
+                             for f in kw["faults"])
+    if "restrict" in kw:
+        kw["restrict"] = tuple(r if isinstance(r, Restrict) else Restrict(
+            tuple(r["sats"]), float(r.get("t0_s", 0.0)), float(r.get("t1_s", math.inf)))
+            for r in kw["restrict"])
+    if "rename" in kw:
+        ren = kw["rename"]
+        kw["rename"] = tuple(sorted(ren.items() if isinstance(ren, dict) else ren))
+    for f in fields(Scenario):  # TOML integers for float fields (duration_s = 100)
+        if f.name in kw and isinstance(f.default, float) and isinstance(kw[f.name], int) \
+                and not isinstance(kw[f.name], bool):
+            kw[f.name] = float(kw[f.name])
+    for key in ("systems", "sats"):
+        if key in kw:
+            v = kw[key]
+            kw[key] = (v,) if isinstance(v, str) else tuple(v)
+    kw["options"] = tuple(sorted(opts.items()))
+    return Scenario(**kw)
+
+
+def _fault_from_dict(f: dict) -> Fault:
+    allowed = {"sat", "kind", "t0_s", "t1_s", "bias_m", "rate_mps"}
+    unknown = set(f) - allowed
+    if unknown:
+        raise ValueError(f"unknown fault key(s) {', '.join(sorted(unknown))}; allowed: "
+                         f"{', '.join(sorted(allowed))}")
+    return Fault(**{k: (float(v) if k not in ("sat", "kind") else v) for k, v in f.items()})
+
+
+def _validate(s: Scenario) -> None:
+    for sys_name in s.systems:
+        check_choice("systems", sys_name, ("GPS", "BDS"))
+    if not s.systems:
+        raise ValueError("systems must name at least one of GPS, BDS")
+    check_positive("duration_s", s.duration_s, allow_zero=True)
+    check_positive("step_s", s.step_s)
+    if s.duration_s / s.step_s > 2_000_000:
+        raise ValueError("duration_s / step_s must be at most 2,000,000 epochs")
+    check_choice("trajectory", s.trajectory, TRAJECTORY_KINDS)
+    check_range("lat_deg", s.lat_deg, -90.0, 90.0)
+    check_range("lon_deg", s.lon_deg, -180.0, 360.0)
+    check_range("mask_deg", s.mask_deg, -10.0, 89.0)
+    check_positive("sigma_m", s.sigma_m)
+    check_choice("noise", s.noise, NOISE_KINDS)
+    check_probability("p_fa", s.p_fa)
+    check_probability("p_md", s.p_md)
+    check_positive("sigma_baro_m", s.sigma_baro_m)
+    check_positive("hal_m", s.hal_m)
+    check_positive("val_m", s.val_m)
+    check_int("seed", s.seed, 0)
+    if not isinstance(s.baro, bool):
+        raise ValueError(f"baro must be true or false, got {s.baro!r}")
+    if s.algorithm not in algorithms.names():
+        raise ValueError(f"algorithm must be one of {', '.join(algorithms.names())}; "
+                         f"got {s.algorithm!r}")
+
+
+# -- named scenarios -------------------------------------------------------------------
+
+def _scenario_dir():
+    return resources.files("raimcore") / "scenarios"
+
+
+def list_scenarios() -> dict[str, str]:
+    """Names and one-line descriptions of the built-in scenarios."""
+    out = {}
+    for entry in sorted(_scenario_dir().iterdir(), key=lambda p: p.name):
+        if entry.name.endswith(".toml"):
+            d = tomllib.loads(entry.read_text())
+            out[entry.name[:-5]] = d.get("description", "").strip().splitlines()[0:1]
+    return {k: (v[0] if v else "") for k, v in out.items()}
+
+
+def load_scenario(name_or_path, **overrides) -> Scenario:
+    """Load a built-in scenario by name or a TOML file by path, then apply ``overrides``.
+
+    Raises
+    ------
+    ValueError for an unknown name (listing the built-in ones), a missing file, a TOML
+    syntax error (with its position) or an unknown key.
+    """
+    text, where = _scenario_text(name_or_path)
+    try:
+        d = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{where}: invalid TOML: {exc}") from None
+    d.setdefault("name", Path(str(name_or_path)).stem)
+    d.update(overrides)
+    try:
+        return from_dict(d)
+    except ValueError as exc:
+        raise ValueError(f"{where}: {exc}") from None
+
+
+def _scenario_text(name_or_path) -> tuple[str, str]:
+    s = str(name_or_path)
+    if s.endswith(".toml") or "/" in s or Path(s).exists():
+        p = Path(s)
+        if not p.is_file():
+            raise ValueError(f"scenario file {s!r} does not exist")
+        return p.read_text(), str(p)
+    entry = _scenario_dir() / f"{s}.toml"
+    if not entry.is_file():
+        raise ValueError(f"unknown scenario {s!r}; built-in scenarios: "
+                         f"{', '.join(list_scenarios())} (or give a path to a .toml file)")
+    return entry.read_text(), f"scenario {s}"
+
+
+def parse_value(text: str):
+    """Parse a ``--set`` value as a TOML value (numbers, booleans, arrays), else a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+# -- the engine ------------------------------------------------------------------------
+
+def build_epoch_data(s: Scenario) -> EpochData:
+    """Simulate every epoch of a scenario: geometry, visibility, pseudoranges, faults.
+
+    Random streams (noise, receiver clock, baro) are spawned from ``s.seed`` with
+    ``SeedSequence``, so each is reproducible on its own.
+    """
+    const = (builtin(s.systems) if s.constellation == "nominal"
+             else read_yuma(s.constellation))
+    const = const if set(const.systems) <= set(s.systems) else const.subset(
+        [n for n, sy in zip(const.names, const.systems, strict=True) if sy in s.systems])
+    if s.sats:
+        const = const.subset(list(s.sats))
+    if s.rename:
+        const = const.renamed(dict(s.rename))
+    n_ep = int(math.floor(s.duration_s / s.step_s + 1e-9)) + 1
+    t = np.arange(n_ep, dtype=float) * s.step_s
+    if s.trajectory == "static":
+        traj = static(t, s.lat_deg, s.lon_deg, s.height_m)
+    elif s.trajectory == "line":
+        traj = straight_line(t, s.lat_deg, s.lon_deg, s.height_m, s.speed_mps, s.heading_deg,
+                             s.climb_mps)
+    else:
+        traj = flight_profile(t, s.lat_deg, s.lon_deg, s.height_m, s.heading_deg,
+                              s.cruise_speed_mps, s.cruise_alt_m, s.climb_s, s.turn_start_s,
+                              s.turn_rate_dps, s.turn_deg)
+    sv = const.positions_ecef_m(s.t_start_s + t)
+    systems = const.sys_names
+    sys_idx = np.array([systems.index(x) for x in const.systems], dtype=int)
+    cc = clock_columns(sys_idx, len(systems))
+    h_enu, rng_m = geometry_rows(sv, traj.pos_ecef_m, cc, frame="enu")
+    el = np.arcsin(np.clip(-h_enu[..., 2], -1.0, 1.0))
+    az = np.mod(np.arctan2(-h_enu[..., 0], -h_enu[..., 1]), 2 * np.pi)
+    used = (el >= math.radians(s.mask_deg)) & np.asarray(const.healthy)[None, :]
+    for r in s.restrict:
+        unknown = [x for x in r.sats if x not in const.names]
+        if unknown:
+            raise ValueError(f"restrict: unknown satellite(s) {', '.join(unknown)}")
+        window = (t >= r.t0_s) & (t < r.t1_s)
+        keep = np.isin(np.array(const.names), list(r.sats))
+        used[window] &= keep[None, :]
+    bias = fault_biases(s.faults, t, const.names)
+    noise = make_noise(s.noise, s.sigma_m, mixture_eps=s.mixture_eps,
+                       mixture_scale=s.mixture_scale, student_nu=s.student_nu)
+    ss = np.random.SeedSequence(int(s.seed))
+    noise_ss, clock_ss, baro_ss = ss.spawn(3)
+    eps = noise.sample(np.random.default_rng(noise_ss), rng_m.shape)
+    clk0 = np.random.default_rng(clock_ss).uniform(-3e5, 3e5, len(systems))
+    clock = clk0[None, :] + s.clock_drift_mps * t[:, None]
+    pr = rng_m + clock @ cc.T + eps + bias
+    pr = np.where(used, pr, np.nan)
+    baro_alt = None
+    if s.baro:
+        baro_alt = traj.h_m + s.sigma_baro_m * np.random.default_rng(baro_ss).standard_normal(
+            n_ep)
+    return EpochData(
+        t_s=t, sat_names=tuple(const.names), sys_idx=sys_idx, systems=systems,
+        pos_sv_ecef_m=sv, pr_m=pr, used=used, az_rad=az, el_rad=el,
+        sigma_m=np.full(pr.shape, s.sigma_m), noise=noise,
+        pos_rx_true_ecef_m=traj.pos_ecef_m, vel_rx_true_ecef_mps=traj.vel_ecef_mps,
+        fault_bias_m=bias, p_fa=s.p_fa, p_md=s.p_md, seed=int(s.seed),
+        baro_alt_m=baro_alt, sigma_baro_m=s.sigma_baro_m if s.baro else None,
+        hal_m=s.hal_m, val_m=s.val_m)
+
+
+@dataclass(frozen=True)
+class ScenarioResult:
+    """A scenario, its simulated data, the algorithm's raw output and the result table."""
+
+    scenario: Scenario
+    data: EpochData
+    output: AlgorithmOutput
+    table: ResultTable
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+def _names(mask_row, sat_names) -> str:
+    return "+".join(n for n, m in zip(sat_names, mask_row, strict=True) if m)
+
+
+def make_table(data: EpochData, out: AlgorithmOutput) -> ResultTable:
+    """The per-epoch result table: algorithm output plus errors and truth."""
+    names = np.array(data.sat_names + ("",), dtype=object)
+    truth = data.pos_rx_true_ecef_m
+    err_b = ecef_to_enu(out.pos_before_ecef_m, truth)
+    err_a = ecef_to_enu(out.pos_after_ecef_m, truth)
+    faulty = (data.fault_bias_m != 0) & data.used
+    # Theoretical detection probability of the snapshot chi-square test for the injected
+    # faults, at the true geometry (spec section 1).
+    cc = clock_columns(data.sys_idx, len(data.systems))
+    h, _ = geometry_rows(data.pos_sv_ecef_m, truth, cc)
+    w = np.where(data.used, 1.0 / data.sigma_m**2, 0.0)
+    proj, _ = _whitened_projector(h, w)
+    n_states = 3 + np.sum(data.used[..., None] & (cc[None] > 0), axis=1).astype(bool).sum(-1)
+    dof = data.used.sum(-1) - n_states
+    pd = detection_probability(proj, data.fault_bias_m, w, dof, data.p_fa)
+    thr = np.asarray(out.threshold, dtype=float)
+    stat = np.asarray(out.statistic, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normalised = stat / thr
+    iso = np.asarray(out.isolated)
+    cols = {
+        "t_s": data.t_s,
+        "n_sat": data.used.sum(-1),
+        "status": np.asarray(out.status, dtype=object),
+        "statistic": stat,
+        "threshold": thr,
+        "normalised": normalised,
+        "alarm": np.asarray(out.alarm, dtype=bool),
+        "isolated": names[np.where(iso >= 0, iso, -1)],
+        "excluded": np.array([_names(r, data.sat_names) for r in out.excluded], dtype=object),
+        "faulty_truth": np.array([_names(r, data.sat_names) for r in faulty], dtype=object),
+        "hpe_before_m": np.hypot(err_b[:, 0], err_b[:, 1]),
+        "hpe_after_m": np.hypot(err_a[:, 0], err_a[:, 1]),
+        "vpe_before_m": np.abs(err_b[:, 2]),
+        "vpe_after_m": np.abs(err_a[:, 2]),
+        "pd_theory": pd,
+    }
+    for k, v in out.columns.items():
+        if k in cols:
+            raise ValueError(f"algorithm column {k!r} clashes with an engine column")
+        cols[k] = np.asarray(v)
+    per_sat = {"el_deg": np.degrees(data.el_rad), "az_deg": np.degrees(data.az_rad),
+               "used": data.used, "fault_bias_m": data.fault_bias_m,
+               "excluded": np.asarray(out.excluded)}
+    per_sat.update({k: np.asarray(v) for k, v in out.per_sat.items()})
+    return ResultTable(cols, per_sat, data.sat_names)
+
+
+def summarize(table: ResultTable) -> dict[str, Any]:
+    """Headline numbers: first alarm, detection and correct-isolation rates, errors."""
+    t = table["t_s"]
+    faulted = table["faulty_truth"] != ""
+    alarm = table["alarm"]
+    excl = table["excluded"]
+    nominal = ~faulted & (table["status"] != "unavailable")
+    out: dict[str, Any] = {
+        "epochs": len(table),
+        "faulted_epochs": int(faulted.sum()),
+        "unavailable_epochs": int(np.sum(table["status"] == "unavailable")),
+        "false_alarm_rate": float(alarm[nominal].mean()) if nominal.any() else math.nan,
+    }
+    if faulted.any():
+        first = np.flatnonzero(faulted & alarm)
+        out["first_fault_t_s"] = float(t[faulted][0])
+        out["first_alarm_t_s"] = float(t[first[0]]) if first.size else None
+        out["detection_rate"] = float(alarm[faulted].mean())
+        out["pd_theory_mean"] = float(np.nanmean(table["pd_theory"][faulted]))
+        out["correct_isolation_rate"] = float(np.mean(excl[faulted] == table["faulty_truth"][
+            faulted]))
+        out["hpe_before_faulted_mean_m"] = float(np.nanmean(table["hpe_before_m"][faulted]))
+        out["hpe_after_faulted_mean_m"] = float(np.nanmean(table["hpe_after_m"][faulted]))
+    if nominal.any():
+        out["hpe_nominal_mean_m"] = float(np.nanmean(table["hpe_before_m"][nominal]))
+    return out
+
+
+def run_scenario(s: Scenario | str, **overrides) -> ScenarioResult:
+    """Run one scenario (an object, a built-in name or a TOML path) end to end."""
+    if isinstance(s, str | Path):
+        s = load_scenario(s, **overrides)
+    elif overrides:
+        s = s.replace(**overrides)
+    data = build_epoch_data(s)
+    spec = algorithms.get(s.algorithm)
+    out = spec.run(data, s.algorithm_options())
+    table = make_table(data, out)
+    return ScenarioResult(s, data, out, table, summarize(table))
