@@ -60,6 +60,12 @@ def ecef_to_geodetic(pos_ecef_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     theta = np.arctan2(z * WGS84_A_M, p * WGS84_B_M)
     lat = np.arctan2(z + ep2 * WGS84_B_M * np.sin(theta) ** 3,
                      p - WGS84_E2 * WGS84_A_M * np.cos(theta) ** 3)
+    with np.errstate(divide="ignore", invalid="ignore"):  # the Earth's centre has no latitude
+        lat, h = _refine(lat, p, z)
+    return lat, lon, h
+
+
+def _refine(lat, p, z):
     for _ in range(2):
         n = WGS84_A_M / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
         h = np.where(np.abs(np.cos(lat)) > 1e-9, p / np.cos(lat) - n,
@@ -67,7 +73,7 @@ def ecef_to_geodetic(pos_ecef_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         lat = np.arctan2(z, p * (1.0 - WGS84_E2 * n / (n + h)))
     n = WGS84_A_M / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
     h = np.where(np.abs(np.cos(lat)) > 1e-9, p / np.cos(lat) - n, np.abs(z) - WGS84_B_M)
-    return lat, lon, h
+    return lat, h
 
 
 def enu_rotation(lat_rad, lon_rad) -> np.ndarray:

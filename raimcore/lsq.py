@@ -77,28 +77,41 @@ def geometry_rows(pos_sv_ecef_m, pos_rx_ecef_m, clock_cols, *, frame: str = "enu
     return np.concatenate([-u, c], axis=-1), rng
 
 
-def normal_solve(a, w, rhs_cols=None):
+def normal_solve(a, w, *, strict: bool = True):
     """Inverse of the regularised normal matrix N = A^T W A and its availability.
 
     States whose column has no weight at all (a clock of a system with no satellite used)
     get a unit diagonal so they stay at zero instead of making N singular; they are not
     counted in ``n_states``.
 
+    Parameters
+    ----------
+    a : (..., S, n) rows; w : (..., S) weights.
+    strict : judge the conditioning by eigenvalues (reciprocal condition number of the
+        diagonally scaled N above ``RCOND_MIN``); otherwise by its determinant, which is
+        cheaper and used inside iterations.
+
     Returns ``n_inv (..., n, n)``, ``present (..., n)`` (bool, state observed),
-    ``ok (...,)`` (bool, reciprocal condition number above ``RCOND_MIN``).
+    ``ok (...,)`` (bool, well conditioned).
     """
-    n = np.einsum("...si,...s,...sj->...ij", a, w, a)
+    aw = a * w[..., None]
+    n = np.swapaxes(aw, -1, -2) @ a
+    finite = np.all(np.isfinite(n), axis=(-2, -1))
+    n = np.where(finite[..., None, None], n, np.eye(n.shape[-1]))
     diag = np.diagonal(n, axis1=-2, axis2=-1)
     present = diag > 0.0
-    n = n + np.einsum("...i,ij->...ij", (~present).astype(float), np.eye(n.shape[-1]))
+    n = n + (~present)[..., None, :] * np.eye(n.shape[-1])
     # Scale to unit diagonal before judging the conditioning (units differ by state).
     d = np.sqrt(np.diagonal(n, axis1=-2, axis2=-1))
-    ns = n / (d[..., :, None] * d[..., None, :])
-    eig = np.linalg.eigvalsh(ns)
-    ok = eig[..., 0] > RCOND_MIN * eig[..., -1]
+    outer = d[..., :, None] * d[..., None, :]
+    ns = n / outer
+    if strict:
+        eig = np.linalg.eigvalsh(ns)
+        ok = finite & (eig[..., 0] > RCOND_MIN * eig[..., -1])
+    else:
+        ok = finite & (np.linalg.det(ns) > RCOND_MIN)
     ns_safe = np.where(ok[..., None, None], ns, np.eye(n.shape[-1]))
-    n_inv = np.linalg.inv(ns_safe) / (d[..., :, None] * d[..., None, :])
-    return n_inv, present, ok
+    return np.linalg.inv(ns_safe) / outer, present, ok
 
 
 def wls(pos_sv_ecef_m, pr_m, weights, sys_idx, n_sys: int | None = None, *,
@@ -139,8 +152,9 @@ def wls(pos_sv_ecef_m, pr_m, weights, sys_idx, n_sys: int | None = None, *,
     for _ in range(max_iter):
         h, rng = geometry_rows(sv, x, cc, frame="ecef")
         dz = pr - rng - clk @ cc.T
-        n_inv, present, ok = normal_solve(h, w)
-        dx = np.einsum("...ij,...sj,...s,...s->...i", n_inv, h, w, dz)
+        n_inv, present, ok = normal_solve(h, w, strict=False)
+        g = (np.swapaxes(h, -1, -2) @ (w * dz)[..., None])
+        dx = (n_inv @ g)[..., 0]
         dx = np.where(ok[..., None], dx, 0.0)
         x = x + dx[..., :3]
         clk = clk + dx[..., 3:]

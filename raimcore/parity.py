@@ -123,6 +123,9 @@ def parity_test(h, z, sigma_m, p_fa: float, method: str = "qr") -> ParityResult:
     h = check_array("h", h, ndim_min=2)
     z = check_array("z", z)
     m, n = h.shape[-2:]
+    if m <= n:
+        raise ValueError(f"h must have more rows (measurements) than columns (states); "
+                         f"got m = {m}, n = {n}")
     if z.shape[-1] != m:
         raise ValueError(f"z must have {m} measurements (rows of h), got shape {z.shape}")
     sigma = np.asarray(sigma_m, dtype=float)
@@ -189,10 +192,9 @@ def _whitened_projector(h, w):
     """S = I - A N^-1 A^T with A = sqrt(w) H; rows with zero weight give S_jj = 1."""
     from .lsq import normal_solve
 
-    n_inv, _, ok = normal_solve(h, w)
+    n_inv, _, ok = normal_solve(h, w, strict=False)
     a = np.sqrt(w)[..., None] * h
-    s_eye = np.eye(h.shape[-2])
-    return s_eye - np.einsum("...si,...ij,...tj->...st", a, n_inv, a), ok
+    return np.eye(h.shape[-2]) - a @ n_inv @ np.swapaxes(a, -1, -2), ok
 
 
 def parity_statistics(h, resid_m, weights, p_fa: float, dof) -> ParityStatistics:
@@ -218,8 +220,8 @@ def parity_statistics(h, resid_m, weights, p_fa: float, dof) -> ParityStatistics
     used = w > 0
     r = np.where(used, np.nan_to_num(np.asarray(resid_m, dtype=float)), 0.0) * np.sqrt(w)
     s, ok = _whitened_projector(np.asarray(h, dtype=float), w)
-    sr = np.einsum("...st,...t->...s", s, r)
-    stat = np.einsum("...s,...s->...", r, sr)
+    sr = (s @ r[..., None])[..., 0]
+    stat = np.sum(r * sr, axis=-1)
     dof = np.asarray(dof)
     valid = ok & (dof >= 1)
     thr = np.where(valid, stats.chi2.isf(p_fa, np.maximum(dof, 1)), np.nan)

@@ -1,0 +1,85 @@
+"""Noise models, faults and trajectories."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+from raimcore.faults import Fault, fault_biases, parse_fault
+from raimcore.noise import make_noise
+from raimcore.trajectories import flight_profile, static, straight_line
+
+
+@pytest.mark.parametrize("kind", ["gaussian", "mixture", "student-t"])
+def test_noise_density_integrates_to_one_and_matches_samples(kind):
+    model = make_noise(kind, 2.0)
+    total, _ = integrate.quad(lambda x: math.exp(model.logpdf(x)), -np.inf, np.inf)
+    assert abs(total - 1.0) < 1e-6
+    x = model.sample(np.random.default_rng(0), 200_000)
+    # Kolmogorov-Smirnov against the model's own CDF (numerical integral of its density).
+    grid = np.linspace(-60, 60, 24001)
+    cdf = np.cumsum(np.exp(model.logpdf(grid))) * (grid[1] - grid[0])
+    ks = stats.kstest(x, lambda q: np.interp(q, grid, cdf))
+    assert ks.pvalue > 1e-3
+
+
+def test_student_t_matches_scipy():
+    model = make_noise("student-t", 1.5, student_nu=4.0)
+    x = np.linspace(-10, 10, 11)
+    assert np.allclose(model.logpdf(x), stats.t.logpdf(x, 4.0, scale=1.5))
+    assert math.isclose(model.std_m, 1.5 * math.sqrt(2.0))
+
+
+def test_noise_bad_parameters_named():
+    with pytest.raises(ValueError, match="noise must be one of"):
+        make_noise("laplace", 1.0)
+    with pytest.raises(ValueError, match="sigma_m"):
+        make_noise("gaussian", 0.0)
+    with pytest.raises(ValueError, match="mixture_eps"):
+        make_noise("mixture", 1.0, mixture_eps=1.5)
+
+
+def test_step_and_ramp_biases():
+    t = np.arange(0.0, 10.0)
+    step = Fault("G01", "step", t0_s=2, t1_s=5, bias_m=10.0)
+    ramp = Fault("G02", "ramp", t0_s=3, rate_mps=2.0)
+    b = fault_biases([step, ramp, Fault("G01", "step", t0_s=4, bias_m=1.0)], t,
+                     ("G01", "G02", "G03"))
+    assert np.array_equal(b[:, 0], [0, 0, 10, 10, 11, 1, 1, 1, 1, 1])
+    assert np.array_equal(b[:, 1], [0, 0, 0, 0, 2, 4, 6, 8, 10, 12])
+    assert not b[:, 2].any()
+
+
+def test_fault_parsing_and_errors():
+    f = parse_fault("G10,ramp,5,20")
+    assert (f.sat, f.kind, f.rate_mps, f.t0_s, f.t1_s) == ("G10", "ramp", 5.0, 20.0, math.inf)
+    f = parse_fault("C21,step,100,20,80")
+    assert (f.bias_m, f.t1_s) == (100.0, 80.0)
+    for bad in ("G10,jump,5,20", "G10,step,5", "G10,step,x,1"):
+        with pytest.raises(ValueError, match="--fault must be"):
+            parse_fault(bad)
+    with pytest.raises(ValueError, match="t1_s must be after t0_s"):
+        Fault("G01", "step", t0_s=5, t1_s=5, bias_m=1.0)
+    with pytest.raises(ValueError, match="not in this scenario"):
+        fault_biases([Fault("G99", bias_m=1.0)], [0.0], ("G01",))
+
+
+def test_trajectories():
+    t = np.arange(0.0, 101.0)
+    s = static(t, 30, 104, 500)
+    assert np.ptp(s.pos_ecef_m, axis=0).max() == 0.0
+    line = straight_line(t, 30, 104, 1000, speed_mps=100, heading_deg=90)
+    step = np.linalg.norm(np.diff(line.pos_ecef_m, axis=0), axis=1)
+    assert np.allclose(step, 100.0, rtol=1e-4)
+    assert np.allclose(line.h_m, 1000.0, atol=0.01)
+    tf = np.arange(0.0, 3601.0)
+    fl = flight_profile(tf, 30, 104, 100, heading_deg=0, turn_start_s=2400, turn_deg=180)
+    assert abs(fl.h_m[900] - 10000.0) < 1.0 and abs(fl.h_m[-1] - 10000.0) < 1.0
+    speed = np.linalg.norm(fl.vel_ecef_mps, axis=1)
+    assert speed[0] < 100 and abs(speed[-1] - 230.0) < 0.5
+    # After the 180 deg turn the aircraft flies south: latitude decreases.
+    assert fl.lat_rad[-1] < fl.lat_rad[-200]
+    assert fl.lat_rad[2300] > fl.lat_rad[1000]
+    with pytest.raises(ValueError, match="lat_deg"):
+        static(t, 95, 0, 0)
