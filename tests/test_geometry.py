@@ -5,8 +5,15 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from raimcore.constants import WGS84_A_M, WGS84_B_M
-from raimcore.geometry import (az_el, dops, ecef_to_enu, ecef_to_geodetic, enu_rotation,
-                               enu_to_ecef, geodetic_to_ecef)
+from raimcore.geometry import (
+    az_el,
+    dops,
+    ecef_to_enu,
+    ecef_to_geodetic,
+    enu_rotation,
+    enu_to_ecef,
+    geodetic_to_ecef,
+)
 
 one_mm = 1e-3
 
