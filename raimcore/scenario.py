@@ -373,6 +373,24 @@ def _names(mask_row, sat_names) -> str:
     return "+".join(n for n, m in zip(sat_names, mask_row, strict=True) if m)
 
 
+def check_output(name: str, data: EpochData, out: AlgorithmOutput) -> None:
+    """Check that algorithm ``name`` kept the output contract (shapes), or raise."""
+    e, s = data.n_epochs, data.n_sats
+    want = {"status": (e,), "statistic": (e,), "threshold": (e,), "alarm": (e,),
+            "pos_before_ecef_m": (e, 3), "pos_after_ecef_m": (e, 3), "excluded": (e, s),
+            "isolated": (e,)}
+    for key, shape in want.items():
+        got = np.shape(getattr(out, key))
+        if got != shape:
+            raise RuntimeError(f"algorithm {name!r} returned {key} with shape {got}, "
+                               f"expected {shape}")
+    for group, shape in (("columns", (e,)), ("per_sat", (e, s))):
+        for key, val in getattr(out, group).items():
+            if np.shape(val) != shape:
+                raise RuntimeError(f"algorithm {name!r} returned {group}[{key!r}] with shape "
+                                   f"{np.shape(val)}, expected {shape}")
+
+
 def make_table(data: EpochData, out: AlgorithmOutput) -> ResultTable:
     """The per-epoch result table: algorithm output plus errors and truth."""
     names = np.array(data.sat_names + ("",), dtype=object)
@@ -459,5 +477,6 @@ def run_scenario(s: Scenario | str, **overrides) -> ScenarioResult:
     data = build_epoch_data(s)
     spec = algorithms.get(s.algorithm)
     out = spec.run(data, s.algorithm_options())
+    check_output(spec.name, data, out)
     table = make_table(data, out)
     return ScenarioResult(s, data, out, table, summarize(table))

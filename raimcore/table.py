@@ -60,9 +60,8 @@ class ResultTable:
         with path.open("w", newline="") as fh:
             writer = csv.writer(fh)
             writer.writerow(self.names)
-            for row in self.rows():
-                writer.writerow(["" if (isinstance(x, float) and math.isnan(x)) else x
-                                 for x in row.values()])
+            for row in self.rows():  # NaN became None: an empty CSV field
+                writer.writerow(row.values())
         return path
 
     def to_dict(self) -> dict:

@@ -57,23 +57,25 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     excluded = np.zeros(w.shape, dtype=bool)
     after_pos = before.pos_ecef_m.copy()
     after_stat = st.statistic.copy()
-    cur, cur_st = before, st
-    w_cur = w.copy()
+    # State of the greedy exclusion loop: does the current set still alarm, and whom to drop.
+    act = st.alarm & (st.best >= 0)
+    drop = st.best
     for _ in range(max_excl):
-        act = cur_st.alarm & (cur_st.best >= 0)
-        if not act.any():
-            break
         rows = np.flatnonzero(act)
-        excluded[rows, cur_st.best[rows]] = True
-        w_cur = np.where(excluded, 0.0, w)
+        if rows.size == 0:
+            break
+        excluded[rows, drop[rows]] = True
+        w_rows = np.where(excluded[rows], 0.0, w[rows])
         # Re-solve only the epochs that changed (seed 000 section 1.3, reconstruction).
-        sub = wls(data.pos_sv_ecef_m[rows], data.pr_m[rows], w_cur[rows], data.sys_idx, n_sys,
-                  x0_ecef_m=cur.pos_ecef_m[rows])
-        sub_st = parity_statistics(sub.h_enu, sub.resid_m, w_cur[rows], data.p_fa, sub.dof)
+        sub = wls(data.pos_sv_ecef_m[rows], data.pr_m[rows], w_rows, data.sys_idx, n_sys,
+                  x0_ecef_m=after_pos[rows])
+        sub_st = parity_statistics(sub.h_enu, sub.resid_m, w_rows, data.p_fa, sub.dof)
         after_pos[rows] = sub.pos_ecef_m
         after_stat[rows] = sub_st.statistic
-        cur = _scatter(cur, sub, rows)
-        cur_st = _scatter(cur_st, sub_st, rows)
+        act = np.zeros_like(act)
+        act[rows] = sub_st.alarm & (sub_st.best >= 0)
+        drop = np.full_like(drop, -1)
+        drop[rows] = sub_st.best
     alarm = st.alarm
     return AlgorithmOutput(
         status=status, statistic=st.statistic, threshold=st.threshold, alarm=alarm,
@@ -83,20 +85,6 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
                  "isolability": st.isolability},
         columns={"dof": st.dof, "statistic_after": after_stat},
     )
-
-
-def _scatter(full, part, rows):
-    """Copy of dataclass ``full`` with the batch rows ``rows`` replaced from ``part``."""
-    import dataclasses
-
-    vals = {}
-    for f in dataclasses.fields(full):
-        a = np.array(getattr(full, f.name), copy=True)
-        b = getattr(part, f.name)
-        if isinstance(b, np.ndarray) and a.ndim >= 1 and a.shape[0] >= rows.max() + 1:
-            a[rows] = b
-        vals[f.name] = a
-    return type(full)(**vals)
 
 
 SPEC = register(AlgorithmSpec(
