@@ -1,0 +1,484 @@
+"""Multiple solution separation (MSS) with barometric aiding, and protection levels.
+
+Pure batched kernels on plain arrays (spec section 2, seed 001). The model is linear in a
+local level frame: ``z = H dx + e``, ``e ~ N(0, R)``, ``W = R^-1`` diagonal, states
+``dx = (dE, dN, dU, clock_1, ..., clock_q)``. Rows of ``H`` are satellites ``[-u_enu, c]``
+and optionally one barometric row ``[0, 0, 1, 0, ...]`` (spec section 2, "Model").
+
+Everything is vectorised over epochs (any leading batch axes) and satellites. The
+sub-solutions (satellite ``i`` removed, baro kept) are rank-one downdates of the main
+solution (Sherman-Morrison), and the sub-sub-solutions (``k`` and ``j`` removed) are
+rank-one downdates of the sub-solutions, so nothing loops over satellites:
+
+* leverage ``l_i = w_i h_i^T P0 h_i``, ``v_i = P0 h_i``;
+* ``P_i = P0 + w_i v_i v_i^T / (1 - l_i)``, so ``dP_i = P_i - P0 = w_i v_i v_i^T / (1 - l_i)``;
+* ``dX_i = X0 - X_i = w_i r_i v_i / (1 - l_i)`` with ``r = z - H X0`` the main residuals.
+
+These equal the spec's ``X_i = S_i Z`` and ``dP_i = (S0 - S_i) R (S0 - S_i)^T`` exactly
+(``tests/test_mss.py`` checks it against explicit batched solves).
+
+A consequence worth knowing: removing one measurement moves the solution along the single
+direction ``v_i``, so ``dP_i`` has rank one and the horizontal test ``d_i > T_i`` with
+``T_i = sqrt(lam_max(dP_i,EN)) k_fa`` is the normalised-residual test
+``sqrt(w_i) |r_i| / sqrt(1 - l_i) > k_fa``; the vertical test is the same inequality
+whenever ``v_i[U] != 0``. The code nevertheless evaluates the spec's formulas as written.
+
+References
+----------
+.. [1] Chen W., Yang Z., Gu S., Wang Y., barometric-altimeter-aided aircraft autonomous
+   integrity monitoring by multiple solution separation (seed 001, Chinese original).
+.. [2] Brown R. G., "A baseline GPS RAIM scheme and a note on the equivalence of three RAIM
+   methods", Navigation 39(3), 1992.
+.. [3] Walter T., Enge P., "Weighted RAIM for precision approach", ION GPS 1995.
+.. [4] Brenner M., "Integrated GPS/inertial fault detection availability", Navigation
+   43(2), 1996 (solution separation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy import optimize, stats
+
+from ._validate import check_probability
+
+# Per-epoch status codes (same strings as raimcore.algorithms.base.STATUS_*).
+STATUS_OK = "ok"
+STATUS_NO_ISOLATION = "detect-only"
+STATUS_UNAVAILABLE = "unavailable"
+
+# Identification outcomes (spec section 2, "Identification").
+IDENT_NONE = "none"  # no detection, nothing to identify
+IDENT_UNIQUE = "unique"  # exactly one candidate passed all its sub-sub tests
+IDENT_AMBIGUOUS = "ambiguous"  # several candidates passed
+IDENT_MULTIPLE = "multiple-fault"  # no candidate passed
+IDENT_UNAVAILABLE = "unavailable"  # detection fired but too few measurements to identify
+
+# A sub-solution whose leverage is this close to 1 is unobservable (its satellite carries
+# no redundancy); its separation covariance would be infinite.
+_LEVERAGE_TOL = 1e-9
+# Normal matrices with a larger condition number are treated as singular geometry.
+_COND_MAX = 1e12
+
+
+@dataclass(frozen=True)
+class MssResult:
+    """Solution separation of every epoch of a batch. Shapes: batch ``B...``, ``M`` rows.
+
+    Attributes
+    ----------
+    status : (B...) str, ``"ok"``, ``"detect-only"`` or ``"unavailable"``.
+    dx0_m : (B..., n) main solution (local frame E, N, U, clocks; m).
+    p0_m2 : (B..., n, n) its covariance.
+    dx_sep_m : (B..., M, n) separations ``X0 - X_i`` (NaN for rows that are not candidate
+        satellites or whose sub-solution is unobservable).
+    dp_h_lam_m2, dp_u_m2 : (B..., M) largest eigenvalue of the E/N block of ``dP_i`` and
+        its U/U element.
+    p_h_lam_m2, p_u_m2 : (B..., M) the same for ``P_i``.
+    d_h_m, t_h_m, d_v_m, t_v_m : (B..., M) horizontal/vertical separations and thresholds.
+    ratio : (B..., M) ``max(d_h/T_h, d_v/T_v)`` (NaN where not a candidate).
+    alarm : (B...) bool, any test failed.
+    ident_status : (B...) str, one of the ``IDENT_*`` codes.
+    ident_pass : (B..., M) bool, candidate ``k`` passed all its sub-sub tests.
+    ident_score : (B..., M) ``max_j max(d_kj/T_kj)`` over H and V (ranking extension).
+    ident_unique : (B...) int, row of the unique candidate, -1 otherwise.
+    ident_rank : (B...) int, row with the smallest ``ident_score`` when the status is
+        unique or ambiguous, -1 otherwise.
+    hpl_m, vpl_m : (B...) MSS protection levels (NaN when unavailable).
+    k_fa : (B...) ``Q^-1(p_fa / (2 m_sat))``.
+    m_sat : (B...) int, number of satellites used; ``n_states`` the states estimated.
+    """
+
+    status: np.ndarray
+    dx0_m: np.ndarray
+    p0_m2: np.ndarray
+    dx_sep_m: np.ndarray
+    dp_h_lam_m2: np.ndarray
+    dp_u_m2: np.ndarray
+    p_h_lam_m2: np.ndarray
+    p_u_m2: np.ndarray
+    d_h_m: np.ndarray
+    t_h_m: np.ndarray
+    d_v_m: np.ndarray
+    t_v_m: np.ndarray
+    ratio: np.ndarray
+    alarm: np.ndarray
+    ident_status: np.ndarray
+    ident_pass: np.ndarray
+    ident_score: np.ndarray
+    ident_unique: np.ndarray
+    ident_rank: np.ndarray
+    hpl_m: np.ndarray
+    vpl_m: np.ndarray
+    k_fa: np.ndarray
+    m_sat: np.ndarray
+    n_states: np.ndarray
+
+
+@dataclass(frozen=True)
+class ClassicResult:
+    """Classic snapshot RAIM (weighted SSE chi-square test) and slope-based PLs.
+
+    Attributes
+    ----------
+    status : (B...) str, ``"ok"``, ``"detect-only"`` or ``"unavailable"``.
+    sse : (B...) weighted sum of squared residuals ``r^T W r`` (chi2(dof) without fault).
+    threshold : (B...) ``chi2.isf(p_fa, dof)``.
+    alarm : (B...) bool.
+    dof : (B...) int, ``m - n``.
+    lam_det : (B...) non-centrality detected with probability ``1 - p_md``.
+    hslope_m, vslope_m : (B..., M) slopes (m of position error per unit sqrt(noncentrality));
+        NaN for non-candidate rows.
+    hpl_m, vpl_m : (B...) ``max_i slope_i * sqrt(lam_det)``.
+    """
+
+    status: np.ndarray
+    sse: np.ndarray
+    threshold: np.ndarray
+    alarm: np.ndarray
+    dof: np.ndarray
+    lam_det: np.ndarray
+    hslope_m: np.ndarray
+    vslope_m: np.ndarray
+    hpl_m: np.ndarray
+    vpl_m: np.ndarray
+
+
+def geometry_rows(u_enu, sys_idx, n_sys: int, *, baro: bool) -> np.ndarray:
+    """Local-frame geometry ``H`` with an optional barometric row last.
+
+    Parameters
+    ----------
+    u_enu : (..., S, 3) unit lines of sight receiver -> satellite (ENU).
+    sys_idx : (S,) int, system of each satellite (clock column ``3 + sys_idx``).
+    n_sys : number of systems (clock states).
+    baro : append the row ``[0, 0, 1, 0, ...]`` (spec section 2, "Model").
+
+    Returns
+    -------
+    (..., S + baro, 3 + n_sys) rows ``[-u, c]`` (and the baro row).
+    """
+    u = np.asarray(u_enu, dtype=float)
+    clock = np.zeros((u.shape[-2], n_sys))
+    clock[np.arange(u.shape[-2]), np.asarray(sys_idx)] = 1.0
+    h = np.concatenate([-u, np.broadcast_to(clock, u.shape[:-1] + (n_sys,))], axis=-1)
+    if baro:
+        row = np.zeros(3 + n_sys)
+        row[2] = 1.0  # He - Hb = dU + e_b (spec section 2)
+        h = np.concatenate([h, np.broadcast_to(row, h.shape[:-2] + (1, 3 + n_sys))], axis=-2)
+    return h
+
+
+def _normal_inverse(h, w):
+    """``P0 = (H^T W H)^-1`` over the batch, with absent clock states pinned.
+
+    Columns no used row touches (a system with no satellite in view) are decoupled with a
+    unit diagonal so the rest stays solvable; their count is removed from ``n_states``.
+    Returns ``p0 (B, n, n)``, ``n_states (B,)`` and ``ok (B,)`` (False: singular geometry).
+    """
+    a = np.einsum("bmi,bm,bmj->bij", h, w, h)
+    active = np.any((h != 0.0) & (w[..., None] > 0.0), axis=-2)  # (B, n)
+    n = h.shape[-1]
+    a = a + np.einsum("bi,ij->bij", (~active).astype(float), np.eye(n))
+    cond = np.linalg.cond(a)
+    ok = np.isfinite(cond) & (cond < _COND_MAX)
+    a[~ok] = np.eye(n)
+    p0 = np.linalg.inv(a)
+    p0 = p0 * active[:, :, None] * active[:, None, :]  # pinned states carry no variance
+    return p0, active.sum(axis=-1), ok
+
+
+def _lam_max_2x2(a, b, c):
+    """Largest eigenvalue of the symmetric block ``[[a, b], [b, c]]`` (closed form)."""
+    return 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b**2)
+
+
+def _safe_ratio(d, t):
+    """``d / t`` with ``0 / 0 = 0`` (a separation with no horizontal or vertical part)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = d / t
+    return np.where((t == 0.0) & (d == 0.0), 0.0, r)
+
+
+def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
+    """Multiple solution separation: detection, identification, exclusion and PLs.
+
+    Parameters
+    ----------
+    h : (..., M, n) local-frame geometry rows (see :func:`geometry_rows`); columns 0..2 are
+        E, N, U.
+    z_m : (..., M) innovations (measured minus predicted at the linearisation point, m).
+    w : (..., M) weights ``1 / sigma^2`` (1/m^2); 0 marks an unused row.
+    is_sat : (M,) bool, rows that are satellites (candidates for removal); the baro row is
+        never removed (spec section 2: "sub-solution i: satellite i removed, baro kept").
+    p_fa, p_md : false-alarm and missed-detection probabilities.
+
+    Returns
+    -------
+    MssResult
+
+    Notes
+    -----
+    Equations (spec section 2): ``T_i = sqrt(lam_max(dP_i,EN)) Q^-1(p_fa / (2 m_sat))``,
+    vertical threshold ``sqrt(dP_i,UU) Q^-1(p_fa / (2 m_sat))``; ``HPL = max_i (T_i +
+    sqrt(lam_max(P_i,EN)) Q^-1(p_md))``; ``VPL = max_i (sqrt(dP_i,UU) Q^-1(p_fa / (2 m_sat))
+    + sqrt(P_i,UU) Q^-1(p_md))``.
+
+    Identification tests each candidate ``k``'s sub-solution against its sub-sub-solutions
+    ``(k, j)``, ``j`` over the other used satellites, with the same rule; the false-alarm
+    budget of that group is split over its ``m_sat - 1`` tests, i.e. the threshold factor
+    is ``Q^-1(p_fa / (2 (m_sat - 1)))`` (the spec says "the same rule"; this is our reading).
+    A test whose sub-sub-solution is unobservable makes its candidate fail to pass (it
+    cannot be confirmed). Going one level deeper after a multiple-fault verdict is not
+    implemented.
+    """
+    p_fa = check_probability("p_fa", p_fa)
+    p_md = check_probability("p_md", p_md)
+    h = np.asarray(h, dtype=float)
+    batch = h.shape[:-2]
+    m_rows, n = h.shape[-2:]
+    h = h.reshape(-1, m_rows, n)
+    z = np.broadcast_to(np.asarray(z_m, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
+    w = np.broadcast_to(np.asarray(w, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
+    is_sat = np.asarray(is_sat, dtype=bool)
+    w = np.where(np.isfinite(z), w, 0.0)
+    z = np.where(w > 0.0, z, 0.0)
+
+    p0, n_states, geom_ok = _normal_inverse(h, w)
+    dx0 = np.einsum("bij,bmj,bm,bm->bi", p0, h, w, z)
+    r = z - np.einsum("bmi,bi->bm", h, dx0)  # main residuals
+    used = w > 0.0
+    cand = used & is_sat[None, :]
+    m_sat = cand.sum(axis=-1)
+    m_tot = used.sum(axis=-1)
+    redundancy = m_tot - n_states
+    valid = geom_ok & (redundancy >= 1)
+
+    # Sub-solutions by rank-one downdate (Sherman-Morrison).
+    v = np.einsum("bij,bmj->bmi", p0, h)  # v_i = P0 h_i, (B, M, n)
+    c = np.einsum("bmi,bki->bmk", h, v)  # C = H P0 H^T, (B, M, M)
+    lev = w * np.diagonal(c, axis1=-2, axis2=-1)
+    one_m_lev = 1.0 - lev
+    sub_ok = cand & (one_m_lev > _LEVERAGE_TOL) & valid[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain = np.where(sub_ok, w / one_m_lev, np.nan)  # w_i / (1 - l_i)
+    dx_sep = (gain * r)[..., None] * v  # dX_i = X0 - X_i
+    dp = gain[..., None, None] * v[..., :, None] * v[..., None, :]  # dP_i = P_i - P0
+    p_sub = p0[:, None] + dp
+    dp_h_lam = _lam_max_2x2(dp[..., 0, 0], dp[..., 0, 1], dp[..., 1, 1])
+    p_h_lam = _lam_max_2x2(p_sub[..., 0, 0], p_sub[..., 0, 1], p_sub[..., 1, 1])
+    dp_u = dp[..., 2, 2]
+    p_u = p_sub[..., 2, 2]
+
+    with np.errstate(divide="ignore"):
+        k_fa = stats.norm.isf(p_fa / (2.0 * np.maximum(m_sat, 1)))  # spec section 2
+    k_md = stats.norm.isf(p_md)
+    d_h = np.linalg.norm(dx_sep[..., :2], axis=-1)
+    d_v = np.abs(dx_sep[..., 2])
+    t_h = np.sqrt(dp_h_lam) * k_fa[:, None]
+    t_v = np.sqrt(dp_u) * k_fa[:, None]
+    ratio = np.fmax(_safe_ratio(d_h, t_h), _safe_ratio(d_v, t_v))
+    alarm = valid & np.any(np.where(sub_ok, ratio > 1.0, False), axis=-1)
+
+    # Protection levels (spec section 2). Unavailable unless every used satellite's
+    # sub-solution is observable.
+    pl_ok = valid & np.all(sub_ok | ~cand, axis=-1) & (m_sat > 0)
+    with np.errstate(invalid="ignore"):
+        hpl = np.nanmax(np.where(sub_ok, t_h + np.sqrt(p_h_lam) * k_md, -np.inf), axis=-1)
+        vpl = np.nanmax(np.where(sub_ok, t_v + np.sqrt(p_u) * k_md, -np.inf), axis=-1)
+    hpl = np.where(pl_ok, hpl, np.nan)
+    vpl = np.where(pl_ok, vpl, np.nan)
+
+    # Identification through sub-sub-solutions (paper Fig. 1), all (k, j) pairs at once.
+    # With g_k = w_k / (1 - l_k): P_k h_j = v_j + g_k C_kj v_k,
+    # l_kj = w_j h_j^T P_k h_j = l_j + w_j g_k C_jk^2, r^(k)_j = r_j + g_k r_k C_jk.
+    g = np.where(sub_ok, gain, 0.0)
+    u_kj = v[:, None, :, :] + (g[:, :, None] * c)[..., None] * v[:, :, None, :]  # (B,K,J,n)
+    lev_kj = lev[:, None, :] + w[:, None, :] * g[:, :, None] * c**2
+    r_kj = r[:, None, :] + (g * r)[:, :, None] * c
+    pair = sub_ok[:, :, None] & cand[:, None, :] & ~np.eye(m_rows, dtype=bool)[None]
+    pair_ok = pair & (1.0 - lev_kj > _LEVERAGE_TOL)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain_kj = np.where(pair_ok, w[:, None, :] / (1.0 - lev_kj), np.nan)
+    sep_kj = (gain_kj * r_kj)[..., None] * u_kj  # X_k - X_kj
+    dp_kj_h = gain_kj[..., None, None] * u_kj[..., :2, None] * u_kj[..., None, :2]
+    lam_kj = _lam_max_2x2(dp_kj_h[..., 0, 0], dp_kj_h[..., 0, 1], dp_kj_h[..., 1, 1])
+    with np.errstate(divide="ignore"):
+        k_fa_sub = stats.norm.isf(p_fa / (2.0 * np.maximum(m_sat - 1, 1)))
+    t_kj_h = np.sqrt(lam_kj) * k_fa_sub[:, None, None]
+    t_kj_v = np.sqrt(gain_kj) * np.abs(u_kj[..., 2]) * k_fa_sub[:, None, None]
+    ratio_kj = np.fmax(
+        _safe_ratio(np.linalg.norm(sep_kj[..., :2], axis=-1), t_kj_h),
+        _safe_ratio(np.abs(sep_kj[..., 2]), t_kj_v),
+    )
+    ratio_kj = np.where(pair_ok, ratio_kj, np.where(pair, np.inf, -np.inf))
+    n_pairs = pair.sum(axis=-1)
+    score = np.where(sub_ok & (n_pairs > 0), ratio_kj.max(axis=-1), np.nan)
+    passed = np.where(np.isnan(score), False, score <= 1.0)
+    # Identification needs m >= n + 2 and a sub-sub test for every candidate.
+    can_ident = valid & (redundancy >= 2) & np.all(~cand | (sub_ok & (n_pairs > 0)), axis=-1)
+    can_ident &= np.all(~pair | pair_ok, axis=(-1, -2))
+    n_pass = passed.sum(axis=-1)
+    ident_status = np.full(h.shape[0], IDENT_NONE, dtype=object)
+    ident_status[alarm & ~can_ident] = IDENT_UNAVAILABLE
+    ident_status[alarm & can_ident & (n_pass == 1)] = IDENT_UNIQUE
+    ident_status[alarm & can_ident & (n_pass > 1)] = IDENT_AMBIGUOUS
+    ident_status[alarm & can_ident & (n_pass == 0)] = IDENT_MULTIPLE
+    ident_unique = np.where(ident_status == IDENT_UNIQUE, np.argmax(passed, axis=-1), -1)
+    ranked = np.argmin(np.where(np.isnan(score), np.inf, score), axis=-1)
+    pickable = (ident_status == IDENT_UNIQUE) | (ident_status == IDENT_AMBIGUOUS)
+    ident_rank = np.where(pickable, ranked, -1)
+
+    status = np.full(h.shape[0], STATUS_UNAVAILABLE, dtype=object)
+    status[valid] = STATUS_NO_ISOLATION
+    status[valid & can_ident] = STATUS_OK
+
+    def out(a):
+        return np.asarray(a).reshape(batch + a.shape[1:])
+
+    nan_rows = ~sub_ok
+    return MssResult(
+        status=out(status.astype(str)),
+        dx0_m=out(np.where(valid[:, None], dx0, np.nan)),
+        p0_m2=out(np.where(valid[:, None, None], p0, np.nan)),
+        dx_sep_m=out(np.where(nan_rows[..., None], np.nan, dx_sep)),
+        dp_h_lam_m2=out(np.where(nan_rows, np.nan, dp_h_lam)),
+        dp_u_m2=out(np.where(nan_rows, np.nan, dp_u)),
+        p_h_lam_m2=out(np.where(nan_rows, np.nan, p_h_lam)),
+        p_u_m2=out(np.where(nan_rows, np.nan, p_u)),
+        d_h_m=out(np.where(nan_rows, np.nan, d_h)),
+        t_h_m=out(np.where(nan_rows, np.nan, t_h)),
+        d_v_m=out(np.where(nan_rows, np.nan, d_v)),
+        t_v_m=out(np.where(nan_rows, np.nan, t_v)),
+        ratio=out(np.where(nan_rows, np.nan, ratio)),
+        alarm=out(alarm),
+        ident_status=out(ident_status.astype(str)),
+        ident_pass=out(passed),
+        ident_score=out(score),
+        ident_unique=out(ident_unique),
+        ident_rank=out(ident_rank),
+        hpl_m=out(hpl),
+        vpl_m=out(vpl),
+        k_fa=out(k_fa),
+        m_sat=out(m_sat),
+        n_states=out(n_states),
+    )
+
+
+@lru_cache(maxsize=256)
+def lambda_detect(dof: int, p_fa: float, p_md: float) -> float:
+    """Non-centrality the chi-square test detects with probability ``1 - p_md``.
+
+    Solves ``ncx2.cdf(chi2.isf(p_fa, dof), dof, lam) = p_md`` for ``lam`` (Brown 1992;
+    Walter & Enge 1995 call ``sqrt(lam)`` the "pbias").
+    """
+    t2 = stats.chi2.isf(p_fa, dof)
+
+    def miss(lam):
+        return stats.ncx2.cdf(t2, dof, lam) - p_md
+
+    hi = 10.0
+    while miss(hi) > 0.0:
+        hi *= 2.0
+    return float(optimize.brentq(miss, 1e-9, hi, xtol=1e-10, rtol=1e-12))
+
+
+def classic_raim(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
+    """Classic snapshot RAIM: weighted SSE chi-square detector and slope-based PLs.
+
+    Parameters
+    ----------
+    h, z_m, w, is_sat : as in :func:`mss` (a baro row, if weighted, is one more
+        measurement but never a fault candidate).
+    p_fa, p_md : false-alarm and missed-detection probabilities.
+
+    Returns
+    -------
+    ClassicResult
+
+    Notes
+    -----
+    Test statistic ``SSE = r^T W r ~ chi2(m - n)`` without fault, threshold
+    ``chi2.isf(p_fa, m - n)``. A bias ``b`` on measurement ``i`` gives the non-centrality
+    ``lam = b^2 w_i (1 - l_i)`` and the position error ``b S[:, i]`` with
+    ``S = P0 H^T W``, so (Brown 1992, weighted form of Walter & Enge 1995)::
+
+        Hslope_i = ||S[EN, i]|| / sqrt(w_i (1 - l_i)),   Vslope_i = |S[U, i]| / sqrt(w_i (1 - l_i))
+        HPL = max_i Hslope_i sqrt(lam_det),              VPL = max_i Vslope_i sqrt(lam_det)
+
+    where ``lam_det`` solves ``ncx2.cdf(chi2.isf(p_fa, dof), dof, lam_det) = p_md``.
+    (``Hslope_i = sqrt(lam_max(dP_i,EN))`` of :func:`mss`: both families share slopes.)
+    This PL has no noise term of its own (as in Brown 1992); the MSS PL has one.
+    """
+    p_fa = check_probability("p_fa", p_fa)
+    p_md = check_probability("p_md", p_md)
+    h = np.asarray(h, dtype=float)
+    batch = h.shape[:-2]
+    m_rows, n = h.shape[-2:]
+    h = h.reshape(-1, m_rows, n)
+    z = np.broadcast_to(np.asarray(z_m, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
+    w = np.broadcast_to(np.asarray(w, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
+    is_sat = np.asarray(is_sat, dtype=bool)
+    w = np.where(np.isfinite(z), w, 0.0)
+    z = np.where(w > 0.0, z, 0.0)
+
+    p0, n_states, geom_ok = _normal_inverse(h, w)
+    dx0 = np.einsum("bij,bmj,bm,bm->bi", p0, h, w, z)
+    r = z - np.einsum("bmi,bi->bm", h, dx0)
+    used = w > 0.0
+    cand = used & is_sat[None, :]
+    dof = used.sum(axis=-1) - n_states
+    valid = geom_ok & (dof >= 1)
+    sse = np.where(valid, np.sum(w * r**2, axis=-1), np.nan)
+
+    dof_safe = np.maximum(dof, 1)
+    uniq = np.unique(dof_safe)  # a handful of small integers: one root-find each
+    thr_u = stats.chi2.isf(p_fa, uniq)
+    lam_u = np.array([lambda_detect(int(d), p_fa, p_md) for d in uniq])
+    pos = np.searchsorted(uniq, dof_safe)
+    threshold = np.where(valid, thr_u[pos], np.nan)
+    lam_det = np.where(valid, lam_u[pos], np.nan)
+    alarm = valid & (sse > threshold)
+
+    v = np.einsum("bij,bmj->bmi", p0, h)
+    lev = w * np.einsum("bmi,bmi->bm", h, v)
+    slope_ok = cand & (1.0 - lev > _LEVERAGE_TOL) & valid[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(slope_ok, np.sqrt(w / (1.0 - lev)), np.nan)  # S[:, i] = w_i v_i
+    hslope = scale * np.linalg.norm(v[..., :2], axis=-1)
+    vslope = scale * np.abs(v[..., 2])
+    pl_ok = valid & np.all(slope_ok | ~cand, axis=-1) & (cand.sum(axis=-1) > 0)
+    hpl = np.where(pl_ok, np.nanmax(np.where(slope_ok, hslope, -np.inf), axis=-1), np.nan)
+    vpl = np.where(pl_ok, np.nanmax(np.where(slope_ok, vslope, -np.inf), axis=-1), np.nan)
+    hpl = hpl * np.sqrt(lam_det)
+    vpl = vpl * np.sqrt(lam_det)
+
+    status = np.full(h.shape[0], STATUS_UNAVAILABLE, dtype=object)
+    status[valid] = STATUS_NO_ISOLATION
+    status[valid & (dof >= 2)] = STATUS_OK
+
+    def out(a):
+        return np.asarray(a).reshape(batch + a.shape[1:])
+
+    return ClassicResult(
+        status=out(status.astype(str)),
+        sse=out(sse),
+        threshold=out(threshold),
+        alarm=out(alarm),
+        dof=out(dof),
+        lam_det=out(lam_det),
+        hslope_m=out(hslope),
+        vslope_m=out(vslope),
+        hpl_m=out(hpl),
+        vpl_m=out(vpl),
+    )
+
+
+def availability(hpl_m, vpl_m, hal_m: float, val_m: float) -> np.ndarray:
+    """``True`` where both protection levels are finite and within the alert limits."""
+    hpl = np.asarray(hpl_m, dtype=float)
+    vpl = np.asarray(vpl_m, dtype=float)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(hpl) & np.isfinite(vpl) & (hpl <= hal_m) & (vpl <= val_m)
