@@ -134,6 +134,14 @@ def format_summary(result) -> str:
         ]
     if "hpe_nominal_mean_m" in sm:
         lines.append(f"  mean HPE on fault-free epochs: {sm['hpe_nominal_mean_m']:.1f} m")
+    if "hpl_mean_m" in sm:
+        lines.append(f"  mean HPL {sm['hpl_mean_m']:.1f} m, mean VPL {sm['vpl_mean_m']:.1f} m"
+                     + (f"; available (HPL <= HAL {s.hal_m:g} m and VPL <= VAL {s.val_m:g} m): "
+                        f"{_pct(sm['pl_availability'])}" if "pl_availability" in sm else ""))
+    if "baro_vpl_lower_share" in sm:
+        lines.append(f"  baro lowers VPL at {_pct(sm['baro_vpl_lower_share'])} of epochs "
+                     f"(not higher at {_pct(sm['baro_vpl_not_higher_share'])}), "
+                     f"lowers HPL at {_pct(sm['baro_hpl_lower_share'])}")
     return "\n".join(lines)
 
 

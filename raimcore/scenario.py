@@ -465,6 +465,29 @@ def summarize(table: ResultTable) -> dict[str, Any]:
         out["hpe_after_faulted_mean_m"] = float(np.nanmean(table["hpe_after_m"][faulted]))
     if nominal.any():
         out["hpe_nominal_mean_m"] = float(np.nanmean(table["hpe_before_m"][nominal]))
+    out.update(_summarize_pl(table))
+    return out
+
+
+def _summarize_pl(table: ResultTable) -> dict[str, Any]:
+    """Protection-level headlines for algorithms with ``hpl_m`` / ``vpl_m`` columns (and,
+    for solution separation, the ``*_nobaro_m`` variants: how often the baro lowers them)."""
+    out: dict[str, Any] = {}
+    if "hpl_m" not in table or "vpl_m" not in table:
+        return out
+    hpl, vpl = table["hpl_m"].astype(float), table["vpl_m"].astype(float)
+    if np.isfinite(hpl).any():
+        out["hpl_mean_m"] = float(np.nanmean(hpl))
+        out["vpl_mean_m"] = float(np.nanmean(vpl))
+    if "available" in table:
+        out["pl_availability"] = float(np.mean(table["available"].astype(bool)))
+    if "vpl_nobaro_m" in table and "baro_used" in table and table["baro_used"].any():
+        hpl0, vpl0 = table["hpl_nobaro_m"].astype(float), table["vpl_nobaro_m"].astype(float)
+        both = np.isfinite(vpl) & np.isfinite(vpl0)
+        if both.any():
+            out["baro_vpl_not_higher_share"] = float(np.mean(vpl[both] <= vpl0[both]))
+            out["baro_vpl_lower_share"] = float(np.mean(vpl[both] < vpl0[both]))
+            out["baro_hpl_lower_share"] = float(np.mean(hpl[both] < hpl0[both]))
     return out
 
 

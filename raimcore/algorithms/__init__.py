@@ -15,6 +15,7 @@ __all__ = ["AlgorithmOutput", "AlgorithmSpec", "EpochData", "get", "names", "reg
 # One line per algorithm module (keep one per line: parallel branches add lines here).
 _MODULES = [
     "parity_fde",
+    "mss",
 ]
 
 _loaded = False
