@@ -243,8 +243,9 @@ def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
     z = np.broadcast_to(np.asarray(z_m, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
     w = np.broadcast_to(np.asarray(w, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
     is_sat = np.asarray(is_sat, dtype=bool)
-    w = np.where(np.isfinite(z), w, 0.0)
+    w = np.where(np.isfinite(z) & np.all(np.isfinite(h), axis=-1), w, 0.0)
     z = np.where(w > 0.0, z, 0.0)
+    h = np.where(np.isfinite(h), h, 0.0)
 
     p0, n_states, geom_ok = _normal_inverse(h, w)
     dx0 = np.einsum("bij,bmj,bm,bm->bi", p0, h, w, z)
@@ -421,8 +422,9 @@ def classic_raim(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
     z = np.broadcast_to(np.asarray(z_m, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
     w = np.broadcast_to(np.asarray(w, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
     is_sat = np.asarray(is_sat, dtype=bool)
-    w = np.where(np.isfinite(z), w, 0.0)
+    w = np.where(np.isfinite(z) & np.all(np.isfinite(h), axis=-1), w, 0.0)
     z = np.where(w > 0.0, z, 0.0)
+    h = np.where(np.isfinite(h), h, 0.0)
 
     p0, n_states, geom_ok = _normal_inverse(h, w)
     dx0 = np.einsum("bij,bmj,bm,bm->bi", p0, h, w, z)

@@ -11,6 +11,7 @@ import numpy as np
 
 from .._validate import check_int
 from ..lsq import wls
+from ..mss import classic_raim
 from ..parity import parity_statistics
 from .base import (
     STATUS_NO_ISOLATION,
@@ -52,6 +53,10 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     before = wls(data.pos_sv_ecef_m, data.pr_m, w, data.sys_idx, n_sys)
     st = parity_statistics(before.h_enu, before.resid_m, w, data.p_fa, before.dof)
     available = before.available & (before.dof >= 1)
+    # Classic slope-based protection levels of the chi-square detector (Brown 1992; see
+    # raimcore.mss.classic_raim), for comparison with solution separation (seed 001).
+    pl = classic_raim(before.h_enu, before.resid_m, w, np.ones(w.shape[-1], dtype=bool),
+                      data.p_fa, data.p_md)
     status = np.where(~available, STATUS_UNAVAILABLE,
                       np.where(before.dof >= 2, STATUS_OK, STATUS_NO_ISOLATION)).astype(object)
     excluded = np.zeros(w.shape, dtype=bool)
@@ -83,7 +88,8 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
         isolated=np.where(alarm, st.best, -1),
         per_sat={"isolation": st.isolation, "fault_size_m": st.fault_size_m,
                  "isolability": st.isolability},
-        columns={"dof": st.dof, "statistic_after": after_stat},
+        columns={"dof": st.dof, "statistic_after": after_stat, "hpl_m": pl.hpl_m,
+                 "vpl_m": pl.vpl_m},
     )
 
 
