@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -156,3 +158,22 @@ def test_fault_on_other_paper_satellites_both_rules(sat):
     print(f"\nseed001-fault with the fault on {sat}: identified at {shares['unique']:.1%} "
           f"(unique rule), {shares['rank']:.1%} (ranking)")
     assert shares["rank"] >= shares["unique"]
+
+
+def test_batched_run_equals_single_epoch_runs(fault):
+    """The algorithm compacts the used satellites per batch: per-epoch runs must agree."""
+    data, spec = fault.data, algorithms.get("mss")
+    per_epoch = ("t_s", "pos_sv_ecef_m", "pr_m", "used", "az_rad", "el_rad", "sigma_m",
+                 "pos_rx_true_ecef_m", "vel_rx_true_ecef_mps", "fault_bias_m", "baro_alt_m")
+    for e in (0, 1999, 2000, 2500, 2875, 3001):
+        one = dataclasses.replace(data, **{k: getattr(data, k)[e:e + 1] for k in per_epoch})
+        out = spec.run(one, {"mss_ident_rule": "unique"})
+        for key in ("hpl_m", "vpl_m", "hpl_classic_m", "vpl_nobaro_m"):
+            np.testing.assert_allclose(out.columns[key][0], fault.output.columns[key][e],
+                                       rtol=1e-9)
+        np.testing.assert_allclose(out.per_sat["sep_ratio"][0], fault.output.per_sat[
+            "sep_ratio"][e], rtol=1e-9)
+        np.testing.assert_array_equal(out.excluded[0], fault.output.excluded[e])
+        np.testing.assert_allclose(out.pos_after_ecef_m[0], fault.output.pos_after_ecef_m[e],
+                                   atol=1e-6)
+        assert out.columns["ident_status"][0] == fault.output.columns["ident_status"][e]

@@ -71,44 +71,62 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     ok = lin.available
     pos_lin = np.where(ok[:, None], lin.pos_ecef_m, 0.0)
     has_baro = data.baro_alt_m is not None and data.sigma_baro_m is not None
-    h = np.concatenate([lin.h_enu, np.zeros((n_ep, 1, lin.h_enu.shape[-1]))], axis=1)
+
+    # Compact the used satellites to the front of each epoch (the kernels' cost grows with
+    # the square of the row count, and most of a constellation is below the horizon).
+    order = np.argsort(~(w_sat > 0), axis=1, kind="stable")
+    m_max = max(int((w_sat > 0).sum(axis=1).max()), 1)
+    slot = order[:, :m_max]  # (E, m_max) satellite index of each compacted row
+    h = np.take_along_axis(lin.h_enu, slot[..., None], axis=1)
+    h = np.concatenate([h, np.zeros((n_ep, 1, h.shape[-1]))], axis=1)
     h[:, -1, 2] = 1.0  # baro row [0, 0, 1, 0, ...] (spec section 2)
-    z = np.zeros((n_ep, n_sat + 1))
-    z[:, :n_sat] = np.where(w_sat > 0, np.nan_to_num(lin.resid_m), 0.0)
-    w_gnss = np.zeros((n_ep, n_sat + 1))
-    w_gnss[:, :n_sat] = w_sat
+    w_gnss = np.zeros((n_ep, m_max + 1))
+    w_gnss[:, :m_max] = np.take_along_axis(w_sat, slot, axis=1)
     w_gnss[~ok] = 0.0  # no linearisation point: the epoch is unavailable
+    z = np.zeros((n_ep, m_max + 1))
+    z[:, :m_max] = np.nan_to_num(np.take_along_axis(lin.resid_m, slot, axis=1))
     w_baro = w_gnss.copy()
     if has_baro:
         _, _, h_lin_m = ecef_to_geodetic(pos_lin)
         z[:, -1] = np.asarray(data.baro_alt_m, dtype=float) - h_lin_m  # h_e - h_b innovation
         w_baro[:, -1] = np.where(ok, 1.0 / data.sigma_baro_m**2, 0.0)
-    is_sat = np.r_[np.ones(n_sat, dtype=bool), False]
+    is_sat = np.r_[np.ones(m_max, dtype=bool), False]
 
     main = kernel.mss(h, z, w_baro, is_sat, data.p_fa, data.p_md)
     nobaro = main if not has_baro else kernel.mss(h, z, w_gnss, is_sat, data.p_fa, data.p_md)
     classic = kernel.classic_raim(h, z, w_gnss, is_sat, data.p_fa, data.p_md)
 
-    pick = main.ident_unique if rule == "unique" else main.ident_rank
     rows = np.arange(n_ep)
+
+    def to_sat(row):
+        """Compacted row index (E,) -> satellite index, -1 stays -1."""
+        return np.where(row >= 0, slot[rows, np.maximum(row, 0)], -1)
+
+    def scatter(a, fill=np.nan):
+        """Compacted per-row array (E, m_max + 1) -> per-satellite (E, S)."""
+        out = np.full((n_ep, n_sat), fill, dtype=np.asarray(a).dtype)
+        np.put_along_axis(out, slot, a[:, :m_max], axis=1)
+        return out
+
+    pick_row = main.ident_unique if rule == "unique" else main.ident_rank
+    pick = to_sat(pick_row)
     valid = main.status != kernel.STATUS_UNAVAILABLE
     dx0 = np.where(valid[:, None], main.dx0_m[:, :3], np.nan)
     pos_before = enu_to_ecef(dx0, pos_lin)
-    sep_pick = main.dx_sep_m[rows, np.maximum(pick, 0), :3]
-    dx_after = np.where((pick >= 0)[:, None], dx0 - sep_pick, dx0)
+    sep_pick = main.dx_sep_m[rows, np.maximum(pick_row, 0), :3]
+    dx_after = np.where((pick_row >= 0)[:, None], dx0 - sep_pick, dx0)
     pos_after = enu_to_ecef(dx_after, pos_lin)
     excluded = np.zeros((n_ep, n_sat), dtype=bool)
     excluded[rows[pick >= 0], pick[pick >= 0]] = True
 
-    ratio_h = _ratio(main.d_h_m, main.t_h_m)[:, :n_sat]
-    ratio_v = _ratio(main.d_v_m, main.t_v_m)[:, :n_sat]
-    ratio = main.ratio[:, :n_sat]
+    ratio = scatter(main.ratio)
     statistic = np.where(valid, np.nanmax(np.where(np.isnan(ratio), -np.inf, ratio), axis=1),
                          np.nan)
     statistic = np.where(np.isinf(statistic), np.nan, statistic)
     # The best-ranked candidate is reported (isolated) whenever identification ran, so a
     # "unique" user still sees which satellite the ranking would name.
-    isolated = np.where(pick >= 0, pick, main.ident_rank)
+    rank = to_sat(main.ident_rank)
+    isolated = np.where(pick >= 0, pick, rank)
     names = np.array(data.sat_names + ("",), dtype=object)
     cols = {
         "hpl_m": main.hpl_m,
@@ -127,19 +145,20 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
         "nobaro_status": nobaro.status.astype(object),
         "baro_used": np.full(n_ep, has_baro),
         "ident_status": main.ident_status.astype(object),
-        "ident_unique": names[main.ident_unique],
-        "ident_rank": names[main.ident_rank],
+        "ident_unique": names[to_sat(main.ident_unique)],
+        "ident_rank": names[rank],
     }
+    alarm_col = main.alarm[:, None]
     per_sat = {
         "sep_ratio": ratio,
-        "sep_ratio_h": ratio_h,
-        "sep_ratio_v": ratio_v,
-        "sep_h_m": main.d_h_m[:, :n_sat],
-        "sep_threshold_h_m": main.t_h_m[:, :n_sat],
-        "sep_v_m": main.d_v_m[:, :n_sat],
-        "sep_threshold_v_m": main.t_v_m[:, :n_sat],
-        "ident_score": np.where(main.alarm[:, None], main.ident_score[:, :n_sat], np.nan),
-        "ident_pass": main.ident_pass[:, :n_sat] & main.alarm[:, None],
+        "sep_ratio_h": scatter(_ratio(main.d_h_m, main.t_h_m)),
+        "sep_ratio_v": scatter(_ratio(main.d_v_m, main.t_v_m)),
+        "sep_h_m": scatter(main.d_h_m),
+        "sep_threshold_h_m": scatter(main.t_h_m),
+        "sep_v_m": scatter(main.d_v_m),
+        "sep_threshold_v_m": scatter(main.t_v_m),
+        "ident_score": np.where(alarm_col, scatter(main.ident_score), np.nan),
+        "ident_pass": scatter(main.ident_pass, fill=False) & alarm_col,
     }
     return AlgorithmOutput(
         status=main.status.astype(object),
