@@ -314,3 +314,15 @@ def test_availability_and_validation():
         mss.mss(h, np.zeros(w.shape), w, is_sat, 0.0, 1e-3)
     with pytest.raises(ValueError, match="p_md"):
         mss.classic_raim(h, np.zeros(w.shape), w, is_sat, 1e-5, 1.5)
+
+
+def test_two_faults_are_declared_multiple():
+    """Two 1000 m faults among 8 satellites + baro: no single candidate is consistent."""
+    rng = np.random.default_rng(16)
+    h, w, sd, is_sat = setup(rng, 400, 8)
+    z = rng.normal(size=w.shape) * sd
+    z[:, :2] += 1000.0
+    res = mss.mss(h, z, w, is_sat, 1e-5, 1e-3)
+    assert np.all(res.alarm)
+    assert np.mean(res.ident_status == mss.IDENT_MULTIPLE) > 0.95
+    assert np.all(res.ident_rank[res.ident_status == mss.IDENT_MULTIPLE] == -1)
