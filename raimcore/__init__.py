@@ -16,6 +16,7 @@ faults          step and ramp faults on any set of satellites
 measurements    simulated pseudoranges
 lsq             batched iterative weighted least squares
 parity          parity-vector detection, isolation and reconstruction (seed 000)
+mss             solution separation with baro aiding, MSS and classic protection levels (seed 001)
 scenario        scenario descriptions and the per-epoch engine
 algorithms      the registry of RAIM algorithms
 
