@@ -324,5 +324,30 @@ def test_two_faults_are_declared_multiple():
     z[:, :2] += 1000.0
     res = mss.mss(h, z, w, is_sat, 1e-5, 1e-3)
     assert np.all(res.alarm)
-    assert np.mean(res.ident_status == mss.IDENT_MULTIPLE) > 0.95
-    assert np.all(res.ident_rank[res.ident_status == mss.IDENT_MULTIPLE] == -1)
+    multiple = res.ident_status == mss.IDENT_MULTIPLE
+    assert np.mean(multiple) > 0.95
+    assert np.all(res.ident_rank[multiple] == -1)
+    # One level deeper (spec section 2): the pair (0, 1) is found; never a wrong unique pair.
+    right = int(np.flatnonzero((res.pairs == [0, 1]).all(axis=1))[0])
+    unique = res.ident_pair_unique[multiple]
+    assert np.mean(unique == right) > 0.8
+    assert np.all((unique == right) | (unique == -1))
+    assert np.mean(res.ident_pair_rank[multiple] == right) > 0.95
+    assert np.all(res.ident_pair_unique[~multiple] == -1)
+    assert np.all(np.isnan(res.pair_score[~multiple]))
+
+
+def test_pair_solutions_equal_explicit_solves():
+    rng = np.random.default_rng(17)
+    h, w, sd, is_sat = setup(rng, 30, 7)
+    z = rng.normal(size=w.shape) * sd
+    z[:, 2] += 1500.0
+    z[:, 5] -= 1500.0
+    res = mss.mss(h, z, w, is_sat, 1e-5, 1e-3)
+    tested = np.isfinite(res.pair_score)
+    assert tested.any()
+    for e, p in zip(*np.nonzero(tested), strict=True):
+        k, l = res.pairs[p]
+        _, _, x_kl = explicit_sub(h[e], w[e], z[e], [k, l])
+        np.testing.assert_allclose(res.pair_dx_m[e, p], x_kl, atol=one_um)
+    assert not np.any(tested[:, np.any(res.pairs == 7, axis=1)])  # the baro row stays

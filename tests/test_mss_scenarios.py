@@ -177,3 +177,21 @@ def test_batched_run_equals_single_epoch_runs(fault):
         np.testing.assert_allclose(out.pos_after_ecef_m[0], fault.output.pos_after_ecef_m[e],
                                    atol=1e-6)
         assert out.columns["ident_status"][0] == fault.output.columns["ident_status"][e]
+
+
+@pytest.mark.parametrize("rule", ["unique", "rank"])
+def test_two_faults_on_the_flight_exclude_the_pair(rule):
+    """Two simultaneous 1000 m faults with 7 satellites + baro: level one says
+    multiple-fault, level two names and excludes the pair."""
+    faults = [{"sat": sat, "kind": "step", "bias_m": 1000.0, "t0_s": 50.0, "t1_s": 250.0}
+              for sat in ("G08", "G15")]
+    res = run_scenario("seed001-flight", duration_s=299, faults=faults, mss_ident_rule=rule)
+    t, f = res.table, faulted(res)
+    assert np.mean(t["ident_status"][f] == "multiple-fault") > 0.95
+    pair = t[f"ident_pair_{rule}"][f]
+    share = np.mean(t["excluded"][f] == "G08+G15")
+    print(f"\nseed001-flight, G08 + G15 faulted, rule {rule}: pair excluded at {share:.1%}")
+    assert share > (0.8 if rule == "unique" else 0.95)
+    assert np.all(np.isin(pair, ["G08+G15", ""]))  # never a wrong pair named
+    ok = t["excluded"][f] == "G08+G15"
+    assert np.all(t["hpe_after_m"][f][ok] < 250.0)

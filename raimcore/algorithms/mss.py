@@ -62,7 +62,8 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     -------
     mss_ident_rule : ``"unique"`` (paper: exclude only when exactly one candidate passes)
         or ``"rank"`` (spec extension: also pick the best-ranked candidate when several
-        pass).
+        pass). After a multiple-fault verdict the same rule applies to satellite pairs
+        (second level, redundancy >= 3) and both satellites of the pair are excluded.
     """
     rule = check_choice("mss_ident_rule", options.get("mss_ident_rule", "unique"), IDENT_RULES)
     n_ep, n_sat = data.pr_m.shape
@@ -115,9 +116,18 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     pos_before = enu_to_ecef(dx0, pos_lin)
     sep_pick = main.dx_sep_m[rows, np.maximum(pick_row, 0), :3]
     dx_after = np.where((pick_row >= 0)[:, None], dx0 - sep_pick, dx0)
-    pos_after = enu_to_ecef(dx_after, pos_lin)
     excluded = np.zeros((n_ep, n_sat), dtype=bool)
     excluded[rows[pick >= 0], pick[pick >= 0]] = True
+    # Second level after a multiple-fault verdict: exclude the identified pair.
+    pair = main.ident_pair_unique if rule == "unique" else main.ident_pair_rank
+    has_pair = pair >= 0
+    pair_sats = [to_sat(np.where(has_pair, main.pairs[np.maximum(pair, 0), c], -1))
+                 for c in (0, 1)]
+    for sat in pair_sats:
+        excluded[rows[has_pair], sat[has_pair]] = True
+    dx_pair = main.pair_dx_m[rows, np.maximum(pair, 0), :3]
+    dx_after = np.where(has_pair[:, None], dx_pair, dx_after)
+    pos_after = enu_to_ecef(dx_after, pos_lin)
 
     ratio = scatter(main.ratio)
     statistic = np.where(valid, np.nanmax(np.where(np.isnan(ratio), -np.inf, ratio), axis=1),
@@ -147,6 +157,8 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
         "ident_status": main.ident_status.astype(object),
         "ident_unique": names[to_sat(main.ident_unique)],
         "ident_rank": names[rank],
+        "ident_pair_unique": _pair_names(main, main.ident_pair_unique, to_sat, names),
+        "ident_pair_rank": _pair_names(main, main.ident_pair_rank, to_sat, names),
     }
     alarm_col = main.alarm[:, None]
     per_sat = {
@@ -172,6 +184,13 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
         per_sat=per_sat,
         columns=cols,
     )
+
+
+def _pair_names(main, pair, to_sat, names):
+    """Pair index (E,) into ``main.pairs`` -> ``"G01+G02"`` ("" for none)."""
+    a, b = (names[to_sat(np.where(pair >= 0, main.pairs[np.maximum(pair, 0), c], -1))]
+            for c in (0, 1))
+    return np.where(pair >= 0, a + "+" + b, "").astype(object)
 
 
 def _ratio(d, t):
