@@ -1,0 +1,124 @@
+"""Teaching text for the dashboard: the chosen algorithm explained, and a one-line verdict
+of the current run ("fault on G10 detected at t = 34 s, G10 excluded, HPE back to 12 m").
+
+Pure functions of plain data; no GUI import.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from .figures import RunView
+
+# TeX macros -> Unicode, for viser's Markdown (which renders no math): equations are shown
+# as code spans with readable symbols.
+_TEX = {
+    r"\sigma": "σ", r"\lambda": "λ", r"\beta": "β", r"\tau": "τ", r"\alpha": "α",
+    r"\mu": "μ", r"\Delta": "Δ", r"\delta": "δ", r"\sum": "Σ", r"\chi": "χ", r"\theta": "θ",
+    r"\epsilon": "ε", r"\varepsilon": "ε", r"\le": "≤", r"\ge": "≥", r"\leq": "≤",
+    r"\geq": "≥", r"\neq": "≠", r"\approx": "≈", r"\sim": "~", r"\cdot": "·", r"\times": "×",
+    r"\infty": "∞", r"\in": "∈", r"\|": "‖", r"\hat": "", r"\mathrm": "", r"\operatorname": "",
+    r"\left": "", r"\right": "", r"\quad": " ", r"\,": " ", r"\;": " ", r"\max": "max",
+    r"\min": "min", r"\arg": "arg", r"\log": "log", r"\sqrt": "√", r"\top": "T",
+    r"\ldots": "…", r"\dots": "…", r"\to": "→", r"\rightarrow": "→", r"\propto": "∝",
+    r"\Phi": "Φ", r"\phi": "φ", r"\pi": "π", r"\omega": "ω", r"\gamma": "γ", r"\eta": "η",
+    r"\rho": "ρ", r"\nu": "ν", r"\mathcal": "", r"\mathbf": "", r"\boldsymbol": "",
+}
+
+
+def tex_to_text(tex: str) -> str:
+    """Make TeX readable without a math renderer (``\\sigma^2`` -> ``σ^2``).
+
+    >>> tex_to_text(r"\\lambda = \\|V b\\|^2 / \\sigma^2")
+    'λ = ‖V b‖^2 / σ^2'
+    """
+    out = tex
+    for macro in sorted(_TEX, key=len, reverse=True):
+        out = re.sub(re.escape(macro) + r"(?![A-Za-z])", lambda _m, r=_TEX[macro]: r, out)
+    out = re.sub(r"\\frac\{([^{}]*)\}\{([^{}]*)\}", r"(\1)/(\2)", out)
+    out = out.replace("{", "").replace("}", "")
+    return re.sub(r"[ \t]+", " ", out).strip()
+
+
+def markdown_math(md: str) -> str:
+    """Replace ``$...$`` / ``$$...$$`` math in Markdown by code spans of readable text."""
+    md = re.sub(r"\$\$(.+?)\$\$", lambda m: f"\n\n`{tex_to_text(m.group(1))}`\n\n", md,
+                flags=re.S)
+    return re.sub(r"\$([^$]+?)\$", lambda m: f"`{tex_to_text(m.group(1))}`", md)
+
+
+def teaching_markdown(label: str, summary: str, equations: str, reference: str = "") -> str:
+    """The teaching panel for one algorithm (from its ``AlgorithmSpec``)."""
+    parts = [f"### {label}", summary.strip(), "**Key equations**", markdown_math(equations)]
+    if reference:
+        parts.append(f"*Reference:* {reference}")
+    return "\n\n".join(p for p in parts if p)
+
+
+def _fmt_t(t_s: float) -> str:
+    return f"{t_s:.0f} s" if abs(t_s - round(t_s)) < 1e-6 else f"{t_s:.1f} s"
+
+
+def verdict(view: RunView, p_fa: float | None = None) -> str:
+    """One line saying what happened in the run, for every injected fault.
+
+    Examples: ``"Fault on G10 detected at t = 34 s (14 s after onset), G10 excluded, HPE
+    back to 12 m."``, ``"Fault on G10 (t = 20 s..80 s) never detected."``, ``"No fault
+    injected: 1 alarm in 600 epochs (false alarms)."``
+    """
+    t = view.t_s
+    n_e = t.shape[0]
+    if n_e == 0:
+        return "Empty run."
+    alarm = np.asarray(view.table.get("alarm", np.zeros(n_e, bool)), dtype=bool)
+    status = np.asarray(view.table.get("status", np.full(n_e, "ok")))
+    n_unavail = int(np.sum(status == "unavailable"))
+    faulty = np.flatnonzero(np.any(view.fault_bias_m != 0.0, axis=0))
+    tail = f" ({n_unavail} epochs unavailable)" if n_unavail else ""
+    if faulty.size == 0:
+        n_alarm = int(alarm.sum())
+        rate = f", expected about {p_fa * n_e:.2g}" if p_fa is not None else ""
+        return (f"No fault injected: {n_alarm} alarm{'s' if n_alarm != 1 else ''} in {n_e} "
+                f"epochs (false alarms{rate}).{tail}")
+    hpe_after = view.column("hpe_after_m")
+    hpe_before = view.column("hpe_before_m")
+    lines = []
+    for j in faulty:
+        name = view.sat_names[j]
+        active = (view.fault_bias_m[:, j] != 0.0) & view.used[:, j]
+        if not active.any():
+            lines.append(f"Fault on {name} never seen: the satellite is not tracked "
+                         f"while the fault is on.")
+            continue
+        i_on = int(np.argmax(active))
+        det = alarm & (np.arange(n_e) >= i_on) & active
+        if not det.any():
+            msg = (f"Fault on {name} (from t = {_fmt_t(t[i_on])}) never detected")
+            if hpe_before is not None:
+                msg += f", HPE up to {np.nanmax(np.abs(hpe_before[active])):.0f} m"
+            lines.append(msg + ".")
+            continue
+        i_det = int(np.argmax(det))
+        delay = t[i_det] - t[i_on]
+        msg = f"Fault on {name} detected at t = {_fmt_t(t[i_det])}"
+        msg += f" ({_fmt_t(delay)} after onset)" if delay > 0 else " (at onset)"
+        excl = view.excluded[:, j] & active
+        if excl.any():
+            msg += f", {name} excluded"
+            if hpe_after is not None and np.isfinite(hpe_after[excl]).any():
+                msg += f", HPE back to {np.nanmedian(np.abs(hpe_after[excl])):.0f} m"
+        else:
+            others = np.flatnonzero(np.any(view.excluded[active], axis=0))
+            others = [view.sat_names[k] for k in others if k != j]
+            if others:
+                msg += f", but {', '.join(others[:3])} excluded instead (wrong satellite)"
+            else:
+                msg += ", nothing excluded"
+        lines.append(msg + ".")
+    before = alarm & ~np.any((view.fault_bias_m != 0.0) & view.used, axis=1)
+    n_fa = int(before.sum())
+    if n_fa:
+        lines.append(f"{n_fa} alarm{'s' if n_fa != 1 else ''} while no fault was on.")
+    return " ".join(lines) + tail
