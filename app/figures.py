@@ -56,6 +56,7 @@ class RunView:
     hal_m, val_m : alert limits (m).
     mask_deg : elevation mask (deg).
     algorithm : label of the algorithm that produced the run.
+    isolated_idx : (E,) int, index of the satellite the algorithm names, -1 for none.
     """
 
     table: Mapping[str, np.ndarray]
@@ -70,6 +71,7 @@ class RunView:
     val_m: float = 50.0
     mask_deg: float = 0.0
     algorithm: str = ""
+    isolated_idx: np.ndarray | None = None
 
     @property
     def t_s(self) -> np.ndarray:
@@ -306,7 +308,7 @@ def per_sat_figure(view: RunView, key: str, title: str | None = None,
         data.append({"type": "scatter", "x": t, "y": col, "mode": "lines", "name": name,
                      "line": {"width": 2.6 if faulty[j] else 1.0},
                      "opacity": 1.0 if faulty[j] else 0.7})
-    isolated = view.table.get("isolated")
+    isolated = view.isolated_idx
     alarm = view.table.get("alarm")
     if isolated is not None and alarm is not None:
         iso = np.asarray(isolated, dtype=int)

@@ -1,0 +1,105 @@
+"""Start the RAIM Studio dashboard: a viser server with one :class:`~app.session.Session`
+per connected browser tab.
+
+Offline by design: viser serves its own client (one local ``index.html``) and plotly.js
+from the installed ``plotly`` package over the websocket; no share tunnel (the share button
+is hidden and share requests are refused), no environment map (plain lights), nothing
+fetched at run time. The server listens on 127.0.0.1 unless another host is asked for
+explicitly.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+from raimcore.scenario import Scenario, load_scenario
+
+from .session import Session, preset_table
+
+log = logging.getLogger(__name__)
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8080
+DEFAULT_SCENARIO = "default"
+
+
+class Dashboard:
+    """The running dashboard: the viser server and its sessions (one per client).
+
+    Parameters
+    ----------
+    host, port : where to listen (port 0 picks a free one).
+    scenario : built-in scenario name or TOML path each new session starts from.
+    """
+
+    def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
+                 scenario: str = DEFAULT_SCENARIO, verbose: bool = True) -> None:
+        import viser
+
+        self.start_scenario: Scenario = load_scenario(scenario)
+        self.presets = preset_table()
+        if self.start_scenario.name not in self.presets:
+            self.presets[self.start_scenario.name] = str(scenario)
+        self.sessions: dict[int, Session] = {}
+        self._lock = threading.Lock()
+        self._connected = threading.Condition(self._lock)
+        self.server = viser.ViserServer(host=host, port=port, label="RAIM Studio",
+                                        verbose=verbose)
+        # No share tunnel: hide the button and refuse requests a client might still send.
+        self.server.request_share_url = _refuse_share  # type: ignore[method-assign]
+        self.server.gui.configure_theme(show_share_button=False, control_width="medium",
+                                        brand_color=(31, 94, 234))
+        self.server.scene.configure_environment_map(hdri=None)
+        self.server.on_client_connect(self._on_connect)
+        self.server.on_client_disconnect(self._on_disconnect)
+
+    @property
+    def port(self) -> int:
+        return self.server.get_port()
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.server.get_host()}:{self.port}"
+
+    def _on_connect(self, client) -> None:
+        client.camera.up_direction = (0.0, 0.0, 1.0)
+        session = Session(client, self.start_scenario, self.presets)
+        with self._connected:
+            self.sessions[client.client_id] = session
+            self._connected.notify_all()
+
+    def _on_disconnect(self, client) -> None:
+        with self._lock:
+            session = self.sessions.pop(client.client_id, None)
+        if session is not None:
+            session.close()
+
+    def wait_for_sessions(self, n: int, timeout_s: float = 20.0) -> list[Session]:
+        """Block until ``n`` sessions are connected (tests)."""
+        with self._connected:
+            self._connected.wait_for(lambda: len(self.sessions) >= n, timeout_s)
+            return list(self.sessions.values())
+
+    def stop(self) -> None:
+        for s in list(self.sessions.values()):
+            s.close()
+        self.server.stop()
+
+
+def _refuse_share(*_args, **_kwargs) -> None:
+    log.warning("share URL requested: refused (RAIM Studio runs offline)")
+    return None
+
+
+def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
+          scenario: str = DEFAULT_SCENARIO) -> None:
+    """Run the dashboard until interrupted (Ctrl-C)."""
+    dash = Dashboard(host, port, scenario)
+    print(f"RAIM Studio dashboard: open {dash.url} in a browser (Ctrl-C to stop)")
+    try:
+        threading.Event().wait()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        dash.stop()

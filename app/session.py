@@ -1,0 +1,476 @@
+"""One browser tab = one :class:`Session`: its own controls, 3D scene, run and worker.
+
+Every control change edits the session's :class:`~raimcore.scenario.Scenario` and submits
+a recompute to the session's :class:`~app.scheduler.CoalescingScheduler` (never two at
+once; a burst of slider moves ends on the last value). A recompute runs the scenario
+through :func:`raimcore.scenario.run_scenario`, rebuilds the panels the run calls for (the
+panel registry, :mod:`app.panels`), the teaching text and the verdict, and updates the 3D
+scene. Moving the time slider only moves the scene and the panels' time markers.
+"""
+
+from __future__ import annotations
+
+import html
+import io
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from raimcore import algorithms
+from raimcore.faults import Fault
+from raimcore.scenario import Scenario, ScenarioResult, list_scenarios, load_scenario
+from raimcore.scenario import run_scenario as _run_scenario
+
+from . import panels, teaching
+from .figures import PanelFigure, RunView
+from .scene import SceneRun, SkyScene
+
+NO_FAULT = "(no fault)"
+PLAY_SPEEDS = ("1x", "5x", "20x", "60x")
+PLAY_FPS = 8.0
+
+
+def run_view(result: ScenarioResult) -> RunView:
+    """The figures' view of a scenario result."""
+    data, out, s = result.data, result.output, result.scenario
+    spec = algorithms.get(s.algorithm)
+    return RunView(
+        table=result.table.columns, per_sat={k: np.asarray(v) for k, v in out.per_sat.items()},
+        sat_names=data.sat_names, used=np.asarray(data.used),
+        excluded=np.asarray(out.excluded, dtype=bool),
+        fault_bias_m=np.asarray(data.fault_bias_m), az_rad=data.az_rad, el_rad=data.el_rad,
+        hal_m=s.hal_m, val_m=s.val_m, mask_deg=s.mask_deg, algorithm=spec.label,
+        isolated_idx=np.asarray(out.isolated, dtype=int))
+
+
+def scene_run(result: ScenarioResult, view: RunView) -> SceneRun:
+    return SceneRun(t_s=result.data.t_s, sat_names=result.data.sat_names,
+                    pos_sv_ecef_m=result.data.pos_sv_ecef_m,
+                    pos_rx_ecef_m=result.data.pos_rx_true_ecef_m, state=view.states(),
+                    mask_deg=result.scenario.mask_deg)
+
+
+def fault_label(k: int, f: Fault) -> str:
+    size = f"{f.bias_m:g} m" if f.kind == "step" else f"{f.rate_mps:g} m/s"
+    end = "end" if not math.isfinite(f.t1_s) else f"{f.t1_s:g} s"
+    return f"#{k + 1} {f.sat} {f.kind} {size}, {f.t0_s:g} s..{end}"
+
+
+@dataclass
+class Timing:
+    """Server-side timings (s) of the last recompute, for the benchmark and the status
+    line."""
+
+    run_s: float = 0.0
+    figures_s: float = 0.0
+    push_s: float = 0.0
+    total_s: float = 0.0
+    n_recomputes: int = 0
+    history: list = field(default_factory=list)
+
+
+class Session:
+    """The dashboard of one connected client.
+
+    Parameters
+    ----------
+    client : viser ``ClientHandle`` (or anything with ``.gui`` and ``.scene``).
+    scenario : the scenario this session starts from.
+    presets : names (or TOML paths) offered by the scenario preset control.
+    """
+
+    def __init__(self, client, scenario: Scenario, presets: dict[str, str] | None = None):
+        from .scheduler import CoalescingScheduler
+
+        self.client = client
+        self.gui = client.gui
+        self.scenario = scenario
+        self.presets = dict(presets or {})
+        self.scheduler = CoalescingScheduler(on_error=self._show_error)
+        self.timing = Timing()
+        self.result: ScenarioResult | None = None
+        self.view: RunView | None = None
+        self.figures: dict[str, PanelFigure] = {}
+        self.plot_handles: dict[str, object] = {}
+        self.i_epoch = 0
+        self._syncing = False
+        self._fault_index = 0 if scenario.faults else -1
+        self._play_stop = threading.Event()
+        self._play_thread: threading.Thread | None = None
+        self._option_handles: dict[str, object] = {}
+        self.scene = SkyScene(client.scene)
+        self._build_gui()
+        self.request_recompute()
+
+    # -- GUI construction --------------------------------------------------------------
+    def _build_gui(self) -> None:
+        gui = self.gui
+        s = self.scenario
+        self.status = gui.add_markdown("**Starting...**")
+        self.verdict_md = gui.add_markdown("")
+        with gui.add_folder("Scenario"):
+            names = list(self.presets) or [s.name]
+            self.preset = gui.add_dropdown("Preset", names,
+                                           initial_value=s.name if s.name in names
+                                           else names[0])
+            self.algorithm = gui.add_dropdown("Algorithm", algorithms.names(),
+                                              initial_value=s.algorithm)
+            self.sigma = gui.add_slider("Noise sigma (m)", 0.5, 50.0, 0.5, s.sigma_m)
+            self.p_fa = gui.add_number("P_fa", s.p_fa, min=1e-9, max=0.5, step=1e-6)
+            self.mask = gui.add_slider("Elevation mask (deg)", 0.0, 40.0, 1.0, s.mask_deg)
+            self.seed = gui.add_number("Random seed", int(s.seed), min=0, max=2**31 - 1,
+                                       step=1)
+        self.options_folder = gui.add_folder("Algorithm options", expand_by_default=False)
+        with gui.add_folder("Faults"):
+            self.fault_pick = gui.add_dropdown("Fault to edit", [NO_FAULT])
+            self.fault_sat = gui.add_dropdown("Satellite", ["-"])
+            self.fault_kind = gui.add_dropdown("Type", ["step", "ramp"])
+            self.fault_bias = gui.add_slider("Bias (m)", 0.0, 500.0, 1.0, 100.0)
+            self.fault_rate = gui.add_slider("Ramp rate (m/s)", 0.0, 20.0, 0.1, 2.0)
+            t_end = float(s.duration_s)
+            self.fault_t0 = gui.add_slider("Fault start (s)", 0.0, t_end, s.step_s, 0.0)
+            self.fault_t1 = gui.add_slider("Fault end (s)", 0.0, t_end, s.step_s, t_end)
+            self.fault_add = gui.add_button("Add fault")
+            self.fault_remove = gui.add_button("Remove fault")
+        with gui.add_folder("Time"):
+            self.time = gui.add_slider("t (s)", 0.0, max(t_end, s.step_s), s.step_s, 0.0)
+            self.play = gui.add_checkbox("Play", False)
+            self.speed = gui.add_dropdown("Speed", PLAY_SPEEDS, initial_value="5x")
+        with gui.add_folder("Export", expand_by_default=False):
+            self.export_csv = gui.add_button("Download table (CSV)")
+            self.export_html = gui.add_button("Download figures (HTML)")
+        # Plots and teaching text in their own dockable panel.
+        self.plot_panel = gui.add_panel()
+        with self.plot_panel.add_tab("Plots"):
+            self.plots_folder = gui.add_folder("Panels")
+        with self.plot_panel.add_tab("Learn"):
+            self.teach_md = gui.add_markdown("")
+        self.plot_panel.dock_right()
+        self.plot_panel.set_width(520)
+
+        recompute_on = (self.sigma, self.p_fa, self.mask, self.seed, self.algorithm)
+        for h in recompute_on:
+            h.on_update(lambda _e: self._on_control())
+        self.preset.on_update(lambda _e: self._on_preset())
+        self.algorithm.on_update(lambda _e: self._build_option_controls())
+        for h in (self.fault_sat, self.fault_kind, self.fault_bias, self.fault_rate,
+                  self.fault_t0, self.fault_t1):
+            h.on_update(lambda _e: self._on_fault_edit())
+        self.fault_pick.on_update(lambda _e: self._on_fault_pick())
+        self.fault_add.on_click(lambda _e: self._on_fault_add())
+        self.fault_remove.on_click(lambda _e: self._on_fault_remove())
+        self.time.on_update(lambda _e: self._on_time())
+        self.play.on_update(lambda _e: self._on_play())
+        self.export_csv.on_click(lambda _e: self.download_csv())
+        self.export_html.on_click(lambda _e: self.download_html())
+        self._build_option_controls(recompute=False)
+        self._sync_fault_controls()
+
+    def _build_option_controls(self, recompute: bool = True) -> None:
+        """One control per option of the chosen algorithm (``AlgorithmSpec.options``)."""
+        for h in self._option_handles.values():
+            h.remove()
+        self._option_handles = {}
+        spec = algorithms.get(self.algorithm.value)
+        current = {**dict(spec.options), **{k: v for k, v in self.scenario.options}}
+        with self.options_folder:
+            for key, default in spec.options.items():
+                value = current.get(key, default)
+                if isinstance(default, bool):
+                    h = self.gui.add_checkbox(key, bool(value))
+                elif isinstance(default, int | float):
+                    h = self.gui.add_number(key, value)
+                else:
+                    h = self.gui.add_text(key, str(value))
+                h.on_update(lambda _e: self._on_control())
+                self._option_handles[key] = h
+        self.teach_md.content = teaching.teaching_markdown(spec.label, spec.summary,
+                                                           spec.equations, spec.reference)
+
+    # -- control -> scenario ------------------------------------------------------------
+    def current_scenario(self) -> Scenario:
+        """The scenario the controls describe now."""
+        changes = {
+            "algorithm": self.algorithm.value, "sigma_m": float(self.sigma.value),
+            "p_fa": float(self.p_fa.value), "mask_deg": float(self.mask.value),
+            "seed": int(self.seed.value),
+        }
+        spec = algorithms.get(self.algorithm.value)
+        for key, h in self._option_handles.items():
+            default = spec.options[key]
+            val = h.value
+            if isinstance(default, bool):
+                val = bool(val)
+            elif isinstance(default, int):
+                val = int(val)
+            elif isinstance(default, float):
+                val = float(val)
+            changes[key] = val
+        return self.scenario.replace(**changes)
+
+    def _on_control(self) -> None:
+        if not self._syncing:
+            self.request_recompute()
+
+    def _on_preset(self) -> None:
+        if self._syncing:
+            return
+        name = self.preset.value
+        self.scenario = load_scenario(self.presets.get(name, name))
+        self._syncing = True
+        try:
+            s = self.scenario
+            self.algorithm.value = s.algorithm
+            self.sigma.value = s.sigma_m
+            self.p_fa.value = s.p_fa
+            self.mask.value = s.mask_deg
+            self.seed.value = int(s.seed)
+            for h in (self.fault_t0, self.fault_t1, self.time):
+                h.max = float(s.duration_s)
+                h.step = float(s.step_s)
+            self.fault_t1.value = float(s.duration_s)
+            self.time.value = 0.0
+            self._fault_index = 0 if s.faults else -1
+            self._build_option_controls(recompute=False)
+        finally:
+            self._syncing = False
+        self._sync_fault_controls()
+        self.request_recompute()
+
+    # -- faults -------------------------------------------------------------------------
+    def _visible_sats(self) -> list[str]:
+        if self.result is None:
+            return list(self.scenario.sats) or ["-"]
+        used = np.asarray(self.result.data.used).any(axis=0)
+        return [n for n, u in zip(self.result.data.sat_names, used, strict=True) if u]
+
+    def _sync_fault_controls(self) -> None:
+        """Show the selected fault in the editor controls (without recomputing)."""
+        faults = self.scenario.faults
+        self._syncing = True
+        try:
+            labels = [fault_label(k, f) for k, f in enumerate(faults)] or [NO_FAULT]
+            self.fault_pick.options = labels
+            visible = self._visible_sats()
+            if 0 <= self._fault_index < len(faults):
+                f = faults[self._fault_index]
+                self.fault_pick.value = labels[self._fault_index]
+                opts = visible if f.sat in visible else [*visible, f.sat]
+                self.fault_sat.options = opts
+                self.fault_sat.value = f.sat
+                self.fault_kind.value = f.kind
+                self.fault_bias.value = float(np.clip(f.bias_m, 0, self.fault_bias.max))
+                self.fault_rate.value = float(np.clip(f.rate_mps, 0, self.fault_rate.max))
+                self.fault_t0.value = float(f.t0_s)
+                self.fault_t1.value = float(min(f.t1_s, self.scenario.duration_s))
+                editing = True
+            else:
+                self.fault_pick.value = labels[0]
+                self.fault_sat.options = visible
+                editing = False
+            for h in (self.fault_sat, self.fault_kind, self.fault_bias, self.fault_rate,
+                      self.fault_t0, self.fault_t1, self.fault_remove):
+                h.disabled = not editing
+            if editing:
+                kind = self.fault_kind.value
+                self.fault_bias.disabled = kind != "step"
+                self.fault_rate.disabled = kind != "ramp"
+        finally:
+            self._syncing = False
+
+    def _fault_from_controls(self) -> Fault:
+        t0 = float(self.fault_t0.value)
+        t1 = float(self.fault_t1.value)
+        t1 = math.inf if t1 >= self.scenario.duration_s else t1
+        if t1 <= t0:
+            t1 = t0 + float(self.scenario.step_s)
+        return Fault(sat=self.fault_sat.value, kind=self.fault_kind.value, t0_s=t0, t1_s=t1,
+                     bias_m=float(self.fault_bias.value),
+                     rate_mps=float(self.fault_rate.value))
+
+    def _set_faults(self, faults) -> None:
+        self.scenario = self.scenario.with_faults(*faults)
+
+    def _on_fault_edit(self) -> None:
+        if self._syncing or not (0 <= self._fault_index < len(self.scenario.faults)):
+            return
+        faults = list(self.scenario.faults)
+        faults[self._fault_index] = self._fault_from_controls()
+        self._set_faults(faults)
+        self._sync_fault_controls()
+        self.request_recompute()
+
+    def _on_fault_pick(self) -> None:
+        if self._syncing:
+            return
+        labels = [fault_label(k, f) for k, f in enumerate(self.scenario.faults)]
+        if self.fault_pick.value in labels:
+            self._fault_index = labels.index(self.fault_pick.value)
+        self._sync_fault_controls()
+
+    def add_fault(self, fault: Fault | None = None) -> None:
+        """Add a fault (default: a 50 m step on a visible satellite not yet faulty)."""
+        if fault is None:
+            taken = {f.sat for f in self.scenario.faults}
+            free = [n for n in self._visible_sats() if n not in taken] or self._visible_sats()
+            t_mid = float(self.scenario.duration_s) / 3.0
+            fault = Fault(sat=free[0], kind="step", t0_s=round(t_mid), bias_m=50.0)
+        self._set_faults([*self.scenario.faults, fault])
+        self._fault_index = len(self.scenario.faults) - 1
+        self._sync_fault_controls()
+        self.request_recompute()
+
+    def _on_fault_add(self) -> None:
+        self.add_fault()
+
+    def remove_fault(self, index: int | None = None) -> None:
+        k = self._fault_index if index is None else index
+        faults = list(self.scenario.faults)
+        if not (0 <= k < len(faults)):
+            return
+        del faults[k]
+        self._set_faults(faults)
+        self._fault_index = min(k, len(faults) - 1)
+        self._sync_fault_controls()
+        self.request_recompute()
+
+    def _on_fault_remove(self) -> None:
+        self.remove_fault()
+
+    # -- recompute ----------------------------------------------------------------------
+    def request_recompute(self) -> None:
+        self.scheduler.submit("recompute", self._recompute)
+
+    def _recompute(self) -> None:
+        t0 = time.perf_counter()
+        scenario = self.current_scenario()
+        result = _run_scenario(scenario)
+        t1 = time.perf_counter()
+        view = run_view(result)
+        figs = {key: build(view) for key, build in panels.panels_for(view)}
+        verdict = teaching.verdict(view, scenario.p_fa)
+        t2 = time.perf_counter()
+        self.result, self.view, self.figures = result, view, figs
+        self.i_epoch = self._time_index(float(self.time.value))
+        with self.client.atomic():
+            self._push_figures()
+            self.scene.i_epoch = self.i_epoch
+            self.scene.set_run(scene_run(result, view))
+            self.verdict_md.content = f"**Verdict.** {html.escape(verdict)}"
+        t3 = time.perf_counter()
+        tm = self.timing
+        tm.run_s, tm.figures_s, tm.push_s, tm.total_s = t1 - t0, t2 - t1, t3 - t2, t3 - t0
+        tm.n_recomputes += 1
+        tm.history.append((tm.run_s, tm.figures_s, tm.push_s, tm.total_s))
+        self.status.content = (f"**{scenario.name}** · {len(result.data.t_s)} epochs · "
+                               f"{len(result.data.sat_names)} satellites · update "
+                               f"{1e3 * tm.total_s:.0f} ms")
+        visible = self._visible_sats()
+        if list(self.fault_sat.options) != visible and self._fault_index < 0:
+            self._sync_fault_controls()
+
+    def _push_figures(self) -> None:
+        keep = set(self.figures)
+        for key in list(self.plot_handles):
+            if key not in keep:
+                self.plot_handles.pop(key).remove()
+        for order, (key, fig) in enumerate(self.figures.items()):
+            handle = self.plot_handles.get(key)
+            payload = fig.at(self.i_epoch)
+            if handle is None:
+                with self.plots_folder:
+                    handle = self.gui.add_plotly(payload, aspect=520 / fig.layout["height"],
+                                                 order=order)
+                self.plot_handles[key] = handle
+            else:
+                handle.figure = payload
+                handle.order = order
+
+    # -- time ---------------------------------------------------------------------------
+    def _time_index(self, t_s: float) -> int:
+        if self.result is None:
+            return 0
+        t = self.result.data.t_s
+        return int(np.clip(np.searchsorted(t, t_s - 1e-9), 0, len(t) - 1))
+
+    def _on_time(self) -> None:
+        self.scheduler.submit("time", self._apply_time)
+
+    def _apply_time(self) -> None:
+        i = self._time_index(float(self.time.value))
+        if i == self.i_epoch and self.scene.i_epoch == i:
+            return
+        self.i_epoch = i
+        with self.client.atomic():
+            self.scene.set_time(i)
+            for key, fig in self.figures.items():
+                if fig.marker or fig.dynamic is not None:
+                    self.plot_handles[key].figure = fig.at(i)
+
+    def _on_play(self) -> None:
+        if self.play.value and (self._play_thread is None or not self._play_thread.is_alive()):
+            self._play_stop.clear()
+            self._play_thread = threading.Thread(target=self._play_loop, daemon=True)
+            self._play_thread.start()
+        elif not self.play.value:
+            self._play_stop.set()
+
+    def _play_loop(self) -> None:
+        while not self._play_stop.wait(1.0 / PLAY_FPS):
+            speed = float(self.speed.value.rstrip("x"))
+            t_max = float(self.time.max)
+            t_next = float(self.time.value) + speed / PLAY_FPS
+            self.time.value = 0.0 if t_next > t_max else t_next
+
+    # -- export -------------------------------------------------------------------------
+    def table_csv(self) -> bytes:
+        if self.result is None:
+            return b""
+        buf = io.StringIO()
+        tbl = self.result.table
+        buf.write(",".join(tbl.names) + "\n")
+        for row in tbl.rows():
+            buf.write(",".join("" if isinstance(v, float) and math.isnan(v) else str(v)
+                               for v in row.values()) + "\n")
+        return buf.getvalue().encode()
+
+    def figures_html(self) -> bytes:
+        """All panels as one standalone HTML page (plotly.js embedded, no CDN)."""
+        import plotly.io as pio
+
+        parts = []
+        for k, fig in enumerate(self.figures.values()):
+            parts.append(pio.to_html(fig.to_plotly(None), full_html=False,
+                                     include_plotlyjs=(k == 0)))
+        verdict = html.escape(teaching.verdict(self.view)) if self.view else ""
+        name = html.escape(self.scenario.name)
+        page = ("<!doctype html><html><head><meta charset='utf-8'><title>RAIM Studio: "
+                f"{name}</title></head><body><h2>RAIM Studio: {name}</h2><p>{verdict}</p>"
+                + "\n".join(parts) + "</body></html>")
+        return page.encode()
+
+    def download_csv(self) -> None:
+        self.client.send_file_download(f"{self.scenario.name}.csv", self.table_csv())
+
+    def download_html(self) -> None:
+        self.client.send_file_download(f"{self.scenario.name}-figures.html",
+                                       self.figures_html())
+
+    # -- lifecycle ----------------------------------------------------------------------
+    def _show_error(self, exc: BaseException) -> None:
+        try:
+            self.status.content = f"**Error:** {html.escape(str(exc))}"
+        except Exception:  # noqa: BLE001 - the client may be gone
+            pass
+
+    def close(self) -> None:
+        self._play_stop.set()
+        self.scheduler.close()
+
+
+def preset_table() -> dict[str, str]:
+    """Built-in scenario names offered by the preset control."""
+    return {name: name for name in list_scenarios()}
