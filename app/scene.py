@@ -219,13 +219,13 @@ class SkyScene:
                 rings = orbit_rings(run.pos_sv_ecef_m, run.t_s)
                 seg = np.stack([rings[:, :-1], rings[:, 1:]], axis=2).reshape(-1, 2, 3)
                 seg = seg[np.isfinite(seg).all(axis=(1, 2))]
-                self._nodes["/orbits"] = sc.add_line_segments("/orbits", seg, (170, 170, 200), thickness=1.2,
-                                     thickness_units="screen")
+                self._nodes["/orbits"] = sc.add_line_segments(
+                    "/orbits", seg, (170, 170, 200), thickness=1.2, thickness_units="screen")
             traj = run.pos_rx_ecef_m * SCALE_PER_M
             if np.ptp(traj, axis=0).max() > 1e-6:
                 seg = np.stack([traj[:-1], traj[1:]], axis=1)
-                self._nodes["/trajectory"] = sc.add_line_segments("/trajectory", seg, (255, 220, 0), thickness=3.0,
-                                     thickness_units="screen")
+                self._nodes["/trajectory"] = sc.add_line_segments(
+                    "/trajectory", seg, (255, 220, 0), thickness=3.0, thickness_units="screen")
             self._nodes["/rx"] = sc.add_frame("/rx", show_axes=False)
             sc.add_icosphere("/rx/marker", radius=RX_RADIUS, color=(255, 220, 0),
                              cast_shadow=False, receive_shadow=False)
@@ -248,8 +248,9 @@ class SkyScene:
             self._sat_state = None
         if run.mask_deg != self._mask_deg:
             v, f = mask_cone(run.mask_deg)
-            self._nodes["/rx/mask_cone"] = sc.add_mesh_simple("/rx/mask_cone", v, f, color=(220, 60, 60), opacity=0.18,
-                               side="double", cast_shadow=False, receive_shadow=False)
+            self._nodes["/rx/mask_cone"] = sc.add_mesh_simple(
+                "/rx/mask_cone", v, f, color=(220, 60, 60), opacity=0.18, side="double",
+                cast_shadow=False, receive_shadow=False)
             self._mask_deg = run.mask_deg
         self._run = run
         self.set_time(min(self.i_epoch, run.t_s.shape[0] - 1), force=True)
@@ -289,7 +290,8 @@ class SkyScene:
         if vis.any():
             pts = np.stack([np.broadcast_to(rx_scene, sv[vis].shape), sv[vis]], axis=1)
             col = np.repeat(_rgb_array(state[vis])[:, None, :], 2, axis=1)
-            self._nodes["/los"] = sc.add_line_segments("/los", pts, col, thickness=2.0, thickness_units="screen")
+            self._nodes["/los"] = sc.add_line_segments("/los", pts, col, thickness=2.0,
+                                                       thickness_units="screen")
         elif "/los" in self._nodes:
             self._nodes.pop("/los").remove()
 

@@ -35,8 +35,11 @@ def tex_to_text(tex: str) -> str:
     'λ = ‖V b‖^2 / σ^2'
     """
     out = tex
+    out = re.sub(r"\\lVert\s*", "‖", out)
+    out = re.sub(r"\s*\\rVert", "‖", out)
     for macro in sorted(_TEX, key=len, reverse=True):
-        out = re.sub(re.escape(macro) + r"(?![A-Za-z])", lambda _m, r=_TEX[macro]: r, out)
+        tail = r"(?![A-Za-z])" if macro[-1].isalpha() else ""
+        out = re.sub(re.escape(macro) + tail, lambda _m, r=_TEX[macro]: r, out)
     out = re.sub(r"\\frac\{([^{}]*)\}\{([^{}]*)\}", r"(\1)/(\2)", out)
     out = out.replace("{", "").replace("}", "")
     return re.sub(r"[ \t]+", " ", out).strip()

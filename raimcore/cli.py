@@ -145,6 +145,33 @@ def format_summary(result) -> str:
     return "\n".join(lines)
 
 
+def _add_dashboard(sub):
+    p = sub.add_parser("dashboard", help="start the web dashboard (needs the [app] extra)",
+                       description="Start the RAIM Studio web dashboard (viser + plotly) and "
+                       "print its address. It listens on 127.0.0.1 (this machine only) "
+                       "unless --host names another interface.")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="interface to listen on (default %(default)s)")
+    p.add_argument("--port", type=int, default=8080, help="port (default %(default)s)")
+    p.add_argument("--scenario", default="default",
+                   help="built-in scenario name or .toml file to start from "
+                        "(default %(default)s)")
+    p.set_defaults(func=_cmd_dashboard)
+
+
+def _cmd_dashboard(args) -> int:
+    try:  # imported here so that `import raimcore` never imports viser or plotly
+        from app.server import serve
+    except ImportError as exc:
+        raise ValueError(f"the dashboard needs the optional dependencies: pip install "
+                         f"'raim-studio[app]' ({exc})") from None
+    from .scenario import load_scenario
+
+    load_scenario(args.scenario)  # fail early, with the scenario error, before serving
+    serve(args.host, args.port, args.scenario)
+    return 0
+
+
 def _pct(x) -> str:
     return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.1f}%"
 
@@ -155,7 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
         "algorithms and studies.")
     parser.add_argument("--version", action="version", version=f"raim {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for add in (_add_list, _add_run):
+    for add in (_add_list, _add_run, _add_dashboard):
         add(sub)
     return parser
 

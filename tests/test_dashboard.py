@@ -1,0 +1,369 @@
+"""Dashboard tests, all headless and in-process: pure pieces (land mask, orbits, figures,
+panel registry, verdict, scheduler) and a live viser server whose GUI handles are set from
+Python while the tests assert on the figures and the scene."""
+
+from __future__ import annotations
+
+import base64
+import json
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser")
+pytest.importorskip("plotly")
+
+from app import figures, panels, scene, teaching  # noqa: E402
+from app.scheduler import CoalescingScheduler  # noqa: E402
+from raimcore.scenario import load_scenario, run_scenario  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+WAIT_S = 60.0
+
+
+# -- pure pieces ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize(("lat", "lon", "is_land"), [
+    (48.5, 2.5, True),  # France
+    (40.5, -100.5, True),  # USA
+    (-25.5, 134.5, True),  # Australia
+    (-10.5, -55.5, True),  # Brazil
+    (30.5, 104.5, True),  # Chengdu
+    (0.5, -30.5, False),  # Atlantic
+    (0.5, -150.5, False),  # Pacific
+    (-30.5, 80.5, False),  # Indian Ocean
+])
+def test_land_mask_has_the_continents(lat, lon, is_land):
+    land = scene.land_mask()
+    assert land.shape == (180, 360)
+    i, j = int(90 - lat), int(lon + 180)
+    assert land[i, j] == is_land
+    assert 0.25 < land.mean() < 0.40  # Earth: ~29% land (cells partly land count)
+
+
+def test_land_mesh_faces_outward_on_the_ellipsoid():
+    verts, faces = scene.land_mesh()
+    tri = verts[faces].astype(float)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    centroid = tri.mean(axis=1)
+    outward = np.einsum("ij,ij->i", normal, centroid)
+    degenerate = np.linalg.norm(normal, axis=1) < 1e-12  # pole cells collapse to a point
+    assert np.all(outward[~degenerate] > 0)
+    r = np.linalg.norm(verts, axis=1) / scene.SCALE_PER_M
+    assert r.min() > 6356e3 and r.max() < 6379e3 + 30e3
+
+
+def test_orbit_rings_contain_the_satellites_as_the_earth_turns():
+    res = run_scenario(load_scenario("default", duration_s=600.0, step_s=60.0))
+    pos, t = res.data.pos_sv_ecef_m, res.data.t_s
+    rings = scene.orbit_rings(pos, t, n_points=2048)
+    from viser.transforms import SO3
+
+    for k in (3, 10):
+        rot = SO3(scene.earth_rotation_wxyz(float(t[k] - t[0]))).as_matrix()
+        ring_now = rings @ rot.T  # (S, P, 3) in ECEF at t_k
+        sat = pos[k] * scene.SCALE_PER_M
+        dist = np.linalg.norm(ring_now - sat[:, None, :], axis=-1).min(axis=1)
+        # ring sampling step is 2*pi*26.6/2048 = 0.08 scene units; circular orbits
+        assert np.all(dist < 0.1), dist.max()
+
+
+def test_mask_cone_opens_at_the_mask_elevation():
+    verts, _ = scene.mask_cone(15.0)
+    rim = verts[1:]
+    el = np.degrees(np.arcsin(rim[:, 2] / np.linalg.norm(rim, axis=1)))
+    np.testing.assert_allclose(el, 15.0, atol=1e-4)
+
+
+def test_scheduler_never_overlaps_and_ends_on_the_last_value():
+    sched = CoalescingScheduler()
+    seen = []
+    gate = threading.Event()
+
+    def job(v):
+        def run():
+            gate.wait(5)
+            time.sleep(0.002)
+            seen.append(v)
+        return run
+
+    for v in range(200):
+        sched.submit("recompute", job(v))
+    gate.set()
+    assert sched.wait_idle(10)
+    assert seen[-1] == 199  # a burst ends showing the last value
+    assert len(seen) <= 3  # coalesced: first + last (+ one caught in between)
+    assert sched.n_running_max == 1
+    # Slots: a pending recompute runs before a pending time step.
+    order = []
+    gate2 = threading.Event()
+    sched.submit("time", lambda: (gate2.wait(5), order.append("t0")))
+    sched.submit("time", lambda: order.append("t1"))
+    sched.submit("recompute", lambda: order.append("r"))
+    gate2.set()
+    assert sched.wait_idle(10)
+    assert order == ["t0", "r", "t1"]
+    with pytest.raises(ValueError, match="slot"):
+        sched.submit("nope", lambda: None)
+
+
+def test_scheduler_survives_a_failing_job():
+    errors = []
+    sched = CoalescingScheduler(on_error=errors.append)
+    sched.submit("recompute", lambda: 1 / 0)
+    assert sched.wait_idle(5)
+    done = []
+    sched.submit("recompute", lambda: done.append(1))
+    assert sched.wait_idle(5)
+    assert done == [1] and isinstance(errors[0], ZeroDivisionError)
+
+
+@pytest.fixture(scope="module")
+def default_result():
+    return run_scenario(load_scenario("default"))
+
+
+@pytest.fixture(scope="module")
+def default_view(default_result):
+    from app.session import run_view
+
+    return run_view(default_result)
+
+
+def _decode(arr):
+    if isinstance(arr, dict) and "bdata" in arr:
+        return np.frombuffer(base64.b64decode(arr["bdata"]), dtype="<" + arr["dtype"])
+    return np.asarray(arr, dtype=float)
+
+
+def test_detection_figure_carries_the_table(default_view, default_result):
+    fig = figures.detection_figure(default_view)
+    doc = json.loads(fig.to_json(42))
+    names = [tr["name"] for tr in doc["data"]]
+    assert {"statistic", "threshold", "statistic / threshold", "P_d theory"} <= set(names)
+    stat = _decode(doc["data"][names.index("statistic")]["y"])
+    np.testing.assert_array_equal(stat, default_result.table["statistic"])
+    norm = _decode(doc["data"][names.index("statistic / threshold")]["y"])
+    np.testing.assert_allclose(norm, default_result.table["normalised"])
+    marker = [s for s in doc["layout"]["shapes"] if s.get("name") == "now"]
+    assert marker and marker[0]["x0"] == default_result.table["t_s"][42]
+    go_fig = fig.to_plotly(42)  # plotly's own validation accepts the figure
+    assert len(go_fig.data) == len(doc["data"])
+
+
+def test_sky_figure_moves_with_time_and_colours_states(default_view):
+    fig = figures.sky_figure(default_view)
+    early = json.loads(fig.to_json(0))
+    late = json.loads(fig.to_json(599))
+    used0 = next(tr for tr in early["data"] if tr["name"] == "used")
+    used1 = next(tr for tr in late["data"] if tr["name"] == "used")
+    assert used0["marker"]["color"] == figures.rgb("used")
+    assert not np.allclose(_decode(used0["theta"])[:3], _decode(used1["theta"])[:3])
+    # At t = 300 s the ramp on G10 is excluded by the parity FDE: G10 in "excluded".
+    mid = json.loads(fig.to_json(300))
+    excl = next(tr for tr in mid["data"] if tr["name"] == "excluded")
+    assert "G10" in excl["text"]
+
+
+def test_panel_registry_shows_new_algorithm_outputs_without_dashboard_changes(default_view):
+    e, s = default_view.used.shape
+    rng = np.random.default_rng(0)
+    table = dict(default_view.table)
+    table.update(hpl_m=rng.uniform(10, 20, e), vpl_m=rng.uniform(10, 30, e),
+                 n_eff=rng.uniform(20, 80, e), beta=rng.uniform(0, 5, e))
+    per_sat = dict(default_view.per_sat, llr=rng.normal(size=(e, s)),
+                   mf=rng.normal(size=(e, s)))
+    view = figures.RunView(**{**default_view.__dict__, "table": table, "per_sat": per_sat})
+    keys = [k for k, _ in panels.panels_for(view)]
+    assert keys[:4] == ["sky", "detection", "isolation", "errors"]
+    assert "per_sat:llr" in keys and "per_sat:mf" in keys
+    built = dict((k, b(view)) for k, b in panels.panels_for(view))
+    err_names = [tr["name"] for tr in built["errors"].data]
+    assert "HPL" in err_names and "VPL" in err_names
+    col_names = [tr["name"] for tr in built["columns"].data]
+    assert "n_eff" in col_names and "beta" in col_names
+    assert "hpl_m" not in col_names  # claimed by the error panel, not repeated
+
+
+def test_verdict_names_detection_exclusion_and_error(default_view):
+    text = teaching.verdict(default_view, 1e-3)
+    assert text.startswith("Fault on G10 detected at t = ")
+    assert "G10 excluded" in text and "HPE back to" in text
+    t_det = float(text.split("t = ")[1].split(" s")[0])
+    assert 121 <= t_det <= 200  # ramp 2 m/s from 120 s, sigma 3 m
+
+
+def test_verdict_without_fault_counts_false_alarms():
+    from app.session import run_view
+
+    res = run_scenario(load_scenario("default", faults=[]))
+    text = teaching.verdict(run_view(res), 1e-3)
+    assert text.startswith("No fault injected:") and "600 epochs" in text
+
+
+def test_tex_is_readable_without_a_math_renderer():
+    assert teaching.tex_to_text(r"\lambda = \lVert V b \rVert^2 / \sigma^2") == \
+        "λ = ‖V b‖^2 / σ^2"
+    md = teaching.markdown_math(r"statistic $DF_D = p^T p \sim \chi^2_{m-n}$ here")
+    assert md == "statistic `DF_D = p^T p ~ χ^2_m-n` here"
+
+
+# -- the live server, driven in-process -------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def dash():
+    from app.server import Dashboard
+
+    d = Dashboard(port=0, verbose=False)
+    yield d
+    d.stop()
+
+
+@pytest.fixture()
+def session(dash):
+    from app.session import Session
+
+    s = Session(dash.server, dash.start_scenario, dash.presets)
+    assert s.scheduler.wait_idle(WAIT_S)
+    yield s
+    s.close()
+
+
+def _settle(s):
+    assert s.scheduler.wait_idle(WAIT_S)
+
+
+def test_server_listens_on_localhost_and_serves_its_client_offline(dash):
+    import urllib.request
+
+    assert dash.server.get_host() == "127.0.0.1"
+    page = urllib.request.urlopen(dash.url, timeout=10).read().decode()
+    assert "<div id=\"root\">" in page
+    # The client is one self-contained page: no script or stylesheet from elsewhere.
+    assert "src=\"http" not in page and "href=\"http" not in page
+    assert dash.server.request_share_url() is None  # share tunnel refused
+
+
+def test_session_controls_drive_figures_and_scene(session):
+    s = session
+    assert list(s.figures)[:4] == ["sky", "detection", "isolation", "errors"]
+    stat0 = np.array(s.figures["detection"].data[0]["y"])
+    s.sigma.value = 20.0
+    _settle(s)
+    stat1 = np.array(s.figures["detection"].data[0]["y"])
+    assert s.result.scenario.sigma_m == 20.0
+    assert not np.allclose(stat0, stat1, equal_nan=True)
+    assert "update" in s.status.content
+    # plotly handle carries the new figure
+    doc = json.loads(s.plot_handles["detection"]._plotly_json_str)
+    np.testing.assert_array_equal(_decode(doc["data"][0]["y"]), stat1)
+
+
+def test_fault_controls_edit_add_and_remove_faults(session):
+    s = session
+    assert s.fault_sat.value == "G10" and s.fault_kind.value == "ramp"
+    s.fault_kind.value = "step"
+    s.fault_bias.value = 200.0
+    s.fault_t0.value = 100.0
+    s.fault_t1.value = 300.0
+    _settle(s)
+    (f,) = s.result.scenario.faults
+    assert (f.sat, f.kind, f.bias_m, f.t0_s, f.t1_s) == ("G10", "step", 200.0, 100.0, 300.0)
+    bias = s.result.data.fault_bias_m[:, s.result.data.sat_names.index("G10")]
+    assert np.all(bias[(s.result.data.t_s >= 100) & (s.result.data.t_s < 300)] == 200.0)
+    assert "G10 detected at t = 100 s" in s.verdict_md.content
+    # Only visible satellites are offered.
+    used = s.result.data.used.any(axis=0)
+    offered = set(s.fault_sat.options)
+    assert offered == {n for n, u in zip(s.result.data.sat_names, used, strict=True) if u}
+    # Add a second fault, then remove the first.
+    s.fault_add.value = True  # buttons: setting value fires on_click like a real click
+    _settle(s)
+    assert len(s.result.scenario.faults) == 2
+    assert len(s.fault_pick.options) == 2
+    second = s.result.scenario.faults[1].sat
+    assert second != "G10" and second in offered
+    s.fault_pick.value = s.fault_pick.options[0]
+    s.fault_remove.value = True
+    _settle(s)
+    assert [f.sat for f in s.result.scenario.faults] == [second]
+
+
+def test_time_slider_moves_satellites_and_marks_panels(session):
+    s = session
+    pos0 = s.scene.sat_positions().copy()
+    s.time.value = 400.0
+    _settle(s)
+    assert s.i_epoch == 400
+    pos1 = s.scene.sat_positions()
+    moved = np.linalg.norm(pos1 - pos0, axis=1)
+    assert np.all(moved > 0.5)  # GPS satellites move ~1.4 Mm in 400 s
+    doc = json.loads(s.plot_handles["detection"]._plotly_json_str)
+    assert any(sh.get("name") == "now" and sh["x0"] == 400.0 for sh in doc["layout"]["shapes"])
+    # States in the scene: G10 excluded at t = 400 s in the default ramp scenario.
+    assert s.scene.sat_colors()["G10"] == figures.STATE_COLORS["excluded"]
+    # Raising the mask puts more satellites below it.
+    n_grey = sum(c == figures.STATE_COLORS["below mask"] for c in s.scene.sat_colors().values())
+    s.mask.value = 30.0
+    _settle(s)
+    n_grey2 = sum(c == figures.STATE_COLORS["below mask"]
+                  for c in s.scene.sat_colors().values())
+    assert n_grey2 > n_grey
+
+
+def test_every_registered_algorithm_is_offered_with_its_options(session):
+    from raimcore import algorithms
+
+    assert list(session.algorithm.options) == algorithms.names()
+    spec = algorithms.get(session.algorithm.value)
+    assert set(session._option_handles) == set(spec.options)
+    assert spec.label in session.teach_md.content
+
+
+def test_preset_switch_loads_the_scenario(session):
+    session.preset.value = "seed000-step"
+    _settle(session)
+    res = session.result
+    assert res.scenario.name == "seed000-step" and len(res.data.sat_names) == 6
+    assert session.sigma.value == 33.0 and session.time.max == 100.0
+    assert session.fault_sat.value == "G03" and session.fault_kind.value == "step"
+
+
+def test_exports_csv_and_standalone_html(session):
+    csv_text = session.table_csv().decode()
+    header = csv_text.splitlines()[0].split(",")
+    assert header[:3] == ["t_s", "n_sat", "status"]
+    assert len(csv_text.splitlines()) == 1 + len(session.result.data.t_s)
+    page = session.figures_html().decode()
+    assert "plotly.js v" in page  # plotly.js embedded, not loaded from a CDN
+    assert "<script src=" not in page and "<script type=\"text/javascript\" src=" not in page
+    assert page.count("Plotly.newPlot") == len(session.figures)
+    session.export_csv.value = True  # the button sends the file through viser
+
+
+def test_import_raimcore_does_not_import_the_dashboard():
+    code = "import sys, raimcore, raimcore.cli, raimcore.scenario; " \
+           "print(any(m.split('.')[0] in ('viser', 'plotly', 'app') for m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=ROOT, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_cli_has_a_dashboard_command_on_localhost():
+    from raimcore.cli import build_parser
+
+    args = build_parser().parse_args(["dashboard"])
+    assert (args.host, args.port, args.scenario) == ("127.0.0.1", 8080, "default")
+    args = build_parser().parse_args(["dashboard", "--host", "192.0.2.1", "--port", "9000",
+                                      "--scenario", "seed000-ramp"])
+    assert (args.host, args.port, args.scenario) == ("192.0.2.1", 9000, "seed000-ramp")
+
+
+def test_app_code_never_defaults_to_all_interfaces():
+    for path in (ROOT / "app").rglob("*.py"):
+        assert "0.0.0.0" not in path.read_text(), path
