@@ -410,7 +410,7 @@ def sky_figure(view: RunView) -> PanelFigure:
             })
         return traces, {}
 
-    layout = _base_layout("Sky plot (now)", height=330)
+    layout = _base_layout("Sky plot (now)", height=360)
     layout.pop("xaxis")
     layout["polar"] = {
         "radialaxis": {"range": [0, 90], "tickvals": [0, 30, 60, 90],

@@ -26,8 +26,8 @@ OCEAN_RGB = (38, 84, 150)
 LAND_RGB = (96, 160, 80)
 SAT_RADIUS = 0.45  # scene units (450 km: exaggerated so satellites are visible)
 RX_RADIUS = 0.16
-HORIZON_RADIUS = 4.0
-CONE_SLANT = 9.0
+HORIZON_RADIUS = 3.0
+CONE_SLANT = 6.0
 
 
 @lru_cache(maxsize=1)
@@ -283,8 +283,9 @@ class SkyScene:
                 if self._sat_state is None or state[k] != self._sat_state[k] or force:
                     st = STATE_ORDER[state[k]]
                     self._sat_balls[k].color = STATE_COLORS[st]
-                    self._sat_labels[k].text = (run.sat_names[k] if st == "used"
-                                                else f"{run.sat_names[k]} ({st})")
+                    self._sat_labels[k].text = (f"{run.sat_names[k]} ({st})"
+                                                if st in ("faulty", "excluded")
+                                                else run.sat_names[k])
             self._sat_state = state.copy()
         vis = state != STATE_ORDER.index("below mask")
         if vis.any():

@@ -13,6 +13,8 @@ from __future__ import annotations
 import logging
 import threading
 
+import numpy as np
+
 from raimcore.scenario import Scenario, load_scenario
 
 from .session import Session, preset_table
@@ -51,8 +53,25 @@ class Dashboard:
         self.server.gui.configure_theme(show_share_button=False, control_width="medium",
                                         brand_color=(31, 94, 234))
         self.server.scene.configure_environment_map(hdri=None)
+        self._aim_camera()
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
+
+    def _aim_camera(self) -> None:
+        """Start every client looking at the receiver's side of the Earth from far enough
+        out to see the GNSS orbits (scene units: 1000 km)."""
+        from raimcore.geometry import geodetic_to_ecef
+
+        s = self.start_scenario
+        rx = geodetic_to_ecef(np.radians(s.lat_deg), np.radians(s.lon_deg), 0.0)
+        up = np.array([0.0, 0.0, 1.0])
+        eye = 50.0 * rx / np.linalg.norm(rx) + 12.0 * up
+        cam = self.server.initial_camera
+        cam.position = tuple(eye)
+        cam.look_at = (0.0, 0.0, 0.0)
+        cam.up = (0.0, 0.0, 1.0)
+        cam.near = 0.05
+        cam.far = 2000.0
 
     @property
     def port(self) -> int:
@@ -63,7 +82,6 @@ class Dashboard:
         return f"http://{self.server.get_host()}:{self.port}"
 
     def _on_connect(self, client) -> None:
-        client.camera.up_direction = (0.0, 0.0, 1.0)
         session = Session(client, self.start_scenario, self.presets)
         with self._connected:
             self.sessions[client.client_id] = session

@@ -31,6 +31,7 @@ from .scene import SceneRun, SkyScene
 NO_FAULT = "(no fault)"
 PLAY_SPEEDS = ("1x", "5x", "20x", "60x")
 PLAY_FPS = 8.0
+PLOT_PANEL_WIDTH = 500
 
 
 def run_view(result: ScenarioResult) -> RunView:
@@ -149,7 +150,9 @@ class Session:
         with self.plot_panel.add_tab("Learn"):
             self.teach_md = gui.add_markdown("")
         self.plot_panel.dock_right()
-        self.plot_panel.set_width(520)
+        self.plot_panel.set_width(PLOT_PANEL_WIDTH)
+        gui.main_panel.dock_left()
+        gui.main_panel.set_width(340)
 
         recompute_on = (self.sigma, self.p_fa, self.mask, self.seed, self.algorithm)
         for h in recompute_on:
@@ -382,8 +385,8 @@ class Session:
             payload = fig.at(self.i_epoch)
             if handle is None:
                 with self.plots_folder:
-                    handle = self.gui.add_plotly(payload, aspect=520 / fig.layout["height"],
-                                                 order=order)
+                    aspect = PLOT_PANEL_WIDTH / fig.layout["height"]
+                    handle = self.gui.add_plotly(payload, aspect=aspect, order=order)
                 self.plot_handles[key] = handle
             else:
                 handle.figure = payload
