@@ -284,8 +284,9 @@ def detection_figure(view: RunView) -> PanelFigure:
         xaxis={"title": {"text": "t (s)"}, "anchor": "y2"},
         yaxis={"title": {"text": "statistic"}, "domain": [0.55, 1.0], "type": "log"},
         yaxis2={"title": {"text": "normalised"}, "domain": [0.0, 0.45], "type": "log"},
-        yaxis3={"title": {"text": "P_d"}, "overlaying": "y2", "side": "right",
-                "range": [0, 1.05], "showgrid": False},
+        yaxis3={"title": {"text": "P_d theory", "standoff": 2}, "overlaying": "y2",
+                "side": "right", "range": [0, 1.05], "tickvals": [0, 0.5, 1],
+                "showgrid": False},
         shapes=shapes,
     )
     layout["margin"] = {"l": 48, "r": 40, "t": 30, "b": 36}
@@ -329,7 +330,7 @@ def per_sat_figure(view: RunView, key: str, title: str | None = None,
 def isolation_figure(view: RunView) -> PanelFigure:
     """Per-satellite isolation statistics (``per_sat["isolation"]``)."""
     return per_sat_figure(view, "isolation", "Isolation statistic per satellite",
-                          "isolation statistic")
+                          "isolation statistic", log_y=True)
 
 
 def error_figure(view: RunView) -> PanelFigure:

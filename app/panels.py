@@ -90,7 +90,7 @@ def panels_for(view: RunView) -> list[tuple[str, Callable[[RunView], PanelFigure
 
 
 # Built-in panels.
-register_panel(PanelSpec("sky", figures.sky_figure, order=0))
+register_panel(PanelSpec("sky", figures.sky_figure, order=40))
 register_panel(PanelSpec("detection", figures.detection_figure,
                          needs=("statistic", "threshold"), order=10,
                          claims=("pd_theory", "alarm")))

@@ -180,7 +180,7 @@ def test_panel_registry_shows_new_algorithm_outputs_without_dashboard_changes(de
                    mf=rng.normal(size=(e, s)))
     view = figures.RunView(**{**default_view.__dict__, "table": table, "per_sat": per_sat})
     keys = [k for k, _ in panels.panels_for(view)]
-    assert keys[:4] == ["sky", "detection", "isolation", "errors"]
+    assert keys[:4] == ["detection", "isolation", "errors", "sky"]
     assert "per_sat:llr" in keys and "per_sat:mf" in keys
     built = dict((k, b(view)) for k, b in panels.panels_for(view))
     err_names = [tr["name"] for tr in built["errors"].data]
@@ -251,7 +251,7 @@ def test_server_listens_on_localhost_and_serves_its_client_offline(dash):
 
 def test_session_controls_drive_figures_and_scene(session):
     s = session
-    assert list(s.figures)[:4] == ["sky", "detection", "isolation", "errors"]
+    assert list(s.figures)[:4] == ["detection", "isolation", "errors", "sky"]
     stat0 = np.array(s.figures["detection"].data[0]["y"])
     s.sigma.value = 20.0
     _settle(s)
@@ -314,6 +314,21 @@ def test_time_slider_moves_satellites_and_marks_panels(session):
     n_grey2 = sum(c == figures.STATE_COLORS["below mask"]
                   for c in s.scene.sat_colors().values())
     assert n_grey2 > n_grey
+
+
+def test_play_advances_time_and_pause_stops_it(session):
+    session.speed.value = "60x"
+    session.play.value = True
+    t_end = time.monotonic() + WAIT_S
+    while session.i_epoch < 30 and time.monotonic() < t_end:
+        time.sleep(0.05)
+    session.play.value = False
+    time.sleep(0.5)
+    _settle(session)
+    i_paused = session.i_epoch
+    assert i_paused >= 30
+    time.sleep(0.6)
+    assert session.i_epoch == i_paused == session.scene.i_epoch
 
 
 def test_every_registered_algorithm_is_offered_with_its_options(session):
