@@ -114,6 +114,8 @@ def _encode(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {k: _encode(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
+        if obj and isinstance(obj[0], str | int | float) and not isinstance(obj[0], bool):
+            return obj  # plain labels or numbers: nothing to convert
         return [_encode(v) for v in obj]
     if isinstance(obj, np.generic):
         return obj.item()

@@ -15,6 +15,7 @@ import io
 import math
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +33,7 @@ NO_FAULT = "(no fault)"
 PLAY_SPEEDS = ("1x", "5x", "20x", "60x")
 PLAY_FPS = 8.0
 PLOT_PANEL_WIDTH = 500
+RESULT_CACHE_SIZE = 8  # recent runs kept per session: going back to a setting is instant
 
 
 def run_view(result: ScenarioResult) -> RunView:
@@ -102,6 +104,7 @@ class Session:
         self._play_stop = threading.Event()
         self._play_thread: threading.Thread | None = None
         self._option_handles: dict[str, object] = {}
+        self._cache: OrderedDict[str, ScenarioResult] = OrderedDict()
         self.scene = SkyScene(client.scene)
         self._build_gui()
         self.request_recompute()
@@ -350,7 +353,7 @@ class Session:
     def _recompute(self) -> None:
         t0 = time.perf_counter()
         scenario = self.current_scenario()
-        result = _run_scenario(scenario)
+        result = self._run_cached(scenario)
         t1 = time.perf_counter()
         view = run_view(result)
         figs = {key: build(view) for key, build in panels.panels_for(view)}
@@ -374,6 +377,20 @@ class Session:
         visible = self._visible_sats()
         if list(self.fault_sat.options) != visible and self._fault_index < 0:
             self._sync_fault_controls()
+
+    def _run_cached(self, scenario: Scenario) -> ScenarioResult:
+        """Run the scenario, or reuse the result of an identical recent one (a run is a
+        pure function of the scenario: its seed fixes every random draw)."""
+        key = repr(scenario.to_dict())
+        result = self._cache.get(key)
+        if result is None:
+            result = _run_scenario(scenario)
+            self._cache[key] = result
+            while len(self._cache) > RESULT_CACHE_SIZE:
+                self._cache.popitem(last=False)
+        else:
+            self._cache.move_to_end(key)
+        return result
 
     def _push_figures(self) -> None:
         keep = set(self.figures)
