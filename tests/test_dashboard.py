@@ -264,6 +264,23 @@ def test_session_controls_drive_figures_and_scene(session):
     np.testing.assert_array_equal(_decode(doc["data"][0]["y"]), stat1)
 
 
+def test_going_back_to_a_setting_reuses_the_cached_run(session, monkeypatch):
+    import app.session as app_session
+
+    calls = []
+    real = app_session._run_scenario
+    monkeypatch.setattr(app_session, "_run_scenario", lambda sc: calls.append(sc) or real(sc))
+    session.sigma.value = 7.0
+    _settle(session)
+    first = session.result
+    session.sigma.value = 8.0
+    _settle(session)
+    session.sigma.value = 7.0
+    _settle(session)
+    assert session.result is first
+    assert [c.sigma_m for c in calls] == [7.0, 8.0]
+
+
 def test_fault_controls_edit_add_and_remove_faults(session):
     s = session
     assert s.fault_sat.value == "G10" and s.fault_kind.value == "ramp"
