@@ -99,7 +99,10 @@ class Session:
         self.figures: dict[str, PanelFigure] = {}
         self.plot_handles: dict[str, object] = {}
         self.i_epoch = 0
-        self._syncing = False
+        # Set while this thread writes controls itself (their callbacks then ignore the
+        # change). Thread-local: the worker refreshing controls must not swallow a user
+        # event arriving at the same moment on viser's event thread.
+        self._sync_state = threading.local()
         self._fault_index = 0 if scenario.faults else -1
         self._play_stop = threading.Event()
         self._play_thread: threading.Thread | None = None
@@ -196,6 +199,14 @@ class Session:
         self.teach_md.content = teaching.teaching_markdown(spec.label, spec.summary,
                                                            spec.equations, spec.reference)
 
+    @property
+    def _syncing(self) -> bool:
+        return getattr(self._sync_state, "on", False)
+
+    @_syncing.setter
+    def _syncing(self, on: bool) -> None:
+        self._sync_state.on = on
+
     # -- control -> scenario ------------------------------------------------------------
     def current_scenario(self) -> Scenario:
         """The scenario the controls describe now."""
@@ -287,6 +298,20 @@ class Session:
         finally:
             self._syncing = False
 
+    def _refresh_fault_sats(self) -> None:
+        """Offer the satellites visible in the current run (plus the edited fault's)."""
+        visible = self._visible_sats()
+        current = self.fault_sat.value
+        opts = visible if (current in visible or self._fault_index < 0) else [*visible, current]
+        if list(self.fault_sat.options) != opts:
+            self._syncing = True
+            try:
+                self.fault_sat.options = opts
+                if self._fault_index >= 0:
+                    self.fault_sat.value = current
+            finally:
+                self._syncing = False
+
     def _fault_from_controls(self) -> Fault:
         t0 = float(self.fault_t0.value)
         t1 = float(self.fault_t1.value)
@@ -374,9 +399,7 @@ class Session:
         self.status.content = (f"**{scenario.name}** · {len(result.data.t_s)} epochs · "
                                f"{len(result.data.sat_names)} satellites · update "
                                f"{1e3 * tm.total_s:.0f} ms")
-        visible = self._visible_sats()
-        if list(self.fault_sat.options) != visible and self._fault_index < 0:
-            self._sync_fault_controls()
+        self._refresh_fault_sats()
 
     def _run_cached(self, scenario: Scenario) -> ScenarioResult:
         """Run the scenario, or reuse the result of an identical recent one (a run is a

@@ -311,6 +311,24 @@ def test_fault_controls_edit_add_and_remove_faults(session):
     assert [f.sat for f in s.result.scenario.faults] == [second]
 
 
+def test_mask_change_refreshes_the_offered_satellites(session):
+    before = set(session.fault_sat.options)
+    session.mask.value = 35.0
+    _settle(session)
+    after = set(session.fault_sat.options)
+    assert after < before and "G10" in after | {session.fault_sat.value}
+    assert session.fault_sat.value == "G10"  # the edited fault keeps its satellite
+
+
+def test_a_bad_value_shows_an_error_and_the_session_recovers(session):
+    session.p_fa.value = 0.0  # a typed 0: the engine rejects it (p_fa in (0, 1))
+    _settle(session)
+    assert session.status.content.startswith("**Error:**") and "p_fa" in session.status.content
+    session.p_fa.value = 1e-4
+    _settle(session)
+    assert session.result.scenario.p_fa == 1e-4 and "update" in session.status.content
+
+
 def test_time_slider_moves_satellites_and_marks_panels(session):
     s = session
     pos0 = s.scene.sat_positions().copy()
