@@ -65,7 +65,9 @@ class Dashboard:
         s = self.start_scenario
         rx = geodetic_to_ecef(np.radians(s.lat_deg), np.radians(s.lon_deg), 0.0)
         up = np.array([0.0, 0.0, 1.0])
-        eye = 50.0 * rx / np.linalg.norm(rx) + 12.0 * up
+        # Largest orbit radius (Mm): BeiDou GEO/IGSO 42.2, GPS and BeiDou MEO below 28.
+        r_orbit = 42.2 if "BDS" in s.systems else 26.6
+        eye = 1.9 * r_orbit * rx / np.linalg.norm(rx) + 0.45 * r_orbit * up
         cam = self.server.initial_camera
         cam.position = tuple(eye)
         cam.look_at = (0.0, 0.0, 0.0)
