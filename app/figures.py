@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -31,6 +32,8 @@ STATE_COLORS = {
     "below mask": (150, 150, 150),
 }
 STATE_ORDER = ("used", "faulty", "excluded", "below mask")
+# Protection-level columns shown with the position errors: hpl_m, vpl_nobaro_m, ...
+PROTECTION_LEVEL = re.compile(r"^[hv]pl(_\w+)?_m$")
 
 
 def rgb(state: str) -> str:
@@ -356,6 +359,12 @@ def error_figure(view: RunView) -> PanelFigure:
                      "mode": "lines", "name": label,
                      "line": {"color": color, "dash": dash, "width": width},
                      "visible": True if names[0].startswith("h") else "legendonly"})
+    # Other protection levels an algorithm returns (hpl_nobaro_m, vpl_classic_m, ...).
+    for key in view.table:
+        if PROTECTION_LEVEL.match(key) and key not in ("hpl_m", "vpl_m"):
+            data.append({"type": "scatter", "x": t, "y": view.column(key), "mode": "lines",
+                         "name": key, "line": {"dash": "dash", "width": 1.0},
+                         "visible": "legendonly"})
     shapes = _fault_windows(view)
     shapes.append({"type": "line", "xref": "paper", "yref": "y", "x0": 0, "x1": 1,
                    "y0": view.hal_m, "y1": view.hal_m,

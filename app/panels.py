@@ -3,14 +3,15 @@
 A panel declares the result columns it needs (``"statistic"``, ``"hpl_m"``) and the
 per-satellite arrays it needs (``"per_sat:isolation"``). For a run, :func:`panels_for`
 returns every registered panel whose needs are met, then one generic per-satellite panel
-for each per-satellite array no panel claimed, and one generic panel for the remaining
-numeric per-epoch columns. So an algorithm that returns new outputs (``n_eff``, ``beta``,
-per-satellite ``llr`` or ``mf``) gets panels without any dashboard change; a dedicated
-panel is one :func:`register_panel` call.
+(showing one of the per-satellite arrays no panel claimed, picked in the GUI) and one
+generic panel for the remaining numeric per-epoch columns. So an algorithm that returns
+new outputs (``n_eff``, ``beta``, per-satellite ``llr`` or ``mf``) gets panels without any
+dashboard change; a dedicated panel is one :func:`register_panel` call.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -23,7 +24,7 @@ from .figures import PanelFigure, RunView
 ENGINE_COLUMNS = frozenset({
     "t_s", "n_sat", "status", "statistic", "threshold", "alarm", "isolated", "excluded",
     "hpe_before_m", "hpe_after_m", "vpe_before_m", "vpe_after_m", "faulty_truth",
-    "pd_theory", "n_excluded", "epoch",
+    "pd_theory", "n_excluded", "epoch", "normalised", "dof",
 })
 
 
@@ -39,6 +40,7 @@ class PanelSpec:
     build : ``build(view) -> PanelFigure``.
     order : position in the panel list (smaller first).
     claims : names this panel shows, kept out of the generic panels.
+    claim_pattern : a regular expression for more such names (``hpl_nobaro_m``).
     """
 
     key: str
@@ -47,6 +49,7 @@ class PanelSpec:
     any_of: tuple[str, ...] = ()
     order: float = 100.0
     claims: tuple[str, ...] = ()
+    claim_pattern: re.Pattern | None = None
 
 
 _PANELS: dict[str, PanelSpec] = {}
@@ -68,22 +71,45 @@ def _numeric_column(view: RunView, key: str) -> bool:
     return arr.ndim == 1 and arr.dtype.kind in "fiu" and bool(np.isfinite(arr).any())
 
 
-def panels_for(view: RunView) -> list[tuple[str, Callable[[RunView], PanelFigure]]]:
-    """``(key, build)`` for every panel this run should show, in display order."""
+def _chosen(view: RunView) -> list[PanelSpec]:
     have = available(view)
     chosen = [p for p in _PANELS.values()
               if all(n in have for n in p.needs)
               and (not p.any_of or any(n in have for n in p.any_of))]
-    chosen.sort(key=lambda p: p.order)
-    claimed = set().union(*(set(p.needs) | set(p.claims) for p in chosen)) if chosen else set()
+    return sorted(chosen, key=lambda p: p.order)
+
+
+def _claimed(chosen: list[PanelSpec]) -> set[str]:
+    return set().union(*(set(p.needs) | set(p.claims) for p in chosen)) if chosen else set()
+
+
+def per_sat_keys(view: RunView) -> list[str]:
+    """Per-satellite arrays no dedicated panel shows: the generic per-satellite panel
+    offers these (one at a time, chosen in the GUI)."""
+    claimed = _claimed(_chosen(view))
+    return [k for k in view.per_sat if f"per_sat:{k}" not in claimed]
+
+
+def panels_for(view: RunView, per_sat_key: str | None = None
+               ) -> list[tuple[str, Callable[[RunView], PanelFigure]]]:
+    """``(key, build)`` for every panel this run should show, in display order.
+
+    Dedicated panels first, then one generic per-satellite panel (``"per_sat"``) showing
+    ``per_sat_key`` (default: the first of :func:`per_sat_keys`), then one generic panel
+    (``"columns"``) for the remaining numeric per-epoch columns.
+    """
+    chosen = _chosen(view)
+    claimed = _claimed(chosen)
     out: list[tuple[str, Callable[[RunView], PanelFigure]]] = [(p.key, p.build)
                                                                  for p in chosen]
-    for key in view.per_sat:
-        if f"per_sat:{key}" not in claimed:
-            out.append((f"per_sat:{key}",
-                        lambda v, k=key: figures.per_sat_figure(v, k)))
+    keys = per_sat_keys(view)
+    if keys:
+        key = per_sat_key if per_sat_key in keys else keys[0]
+        out.append(("per_sat", lambda v, k=key: figures.per_sat_figure(v, k)))
+    patterns = [p.claim_pattern for p in chosen if p.claim_pattern is not None]
     extra = sorted(k for k in view.table
-                   if k not in ENGINE_COLUMNS and k not in claimed and _numeric_column(view, k))
+                   if k not in ENGINE_COLUMNS and k not in claimed
+                   and not any(pat.match(k) for pat in patterns) and _numeric_column(view, k))
     if extra:
         out.append(("columns", lambda v, ks=tuple(extra): figures.columns_figure(v, list(ks))))
     return out
@@ -99,4 +125,5 @@ register_panel(PanelSpec("isolation", figures.isolation_figure,
 register_panel(PanelSpec("errors", figures.error_figure,
                          any_of=("hpe_before_m", "hpe_after_m", "hpl_m"), order=30,
                          claims=("hpe_before_m", "hpe_after_m", "vpe_before_m",
-                                 "vpe_after_m", "hpl_m", "vpl_m")))
+                                 "vpe_after_m", "hpl_m", "vpl_m"),
+                         claim_pattern=figures.PROTECTION_LEVEL))

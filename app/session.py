@@ -30,6 +30,7 @@ from .figures import PanelFigure, RunView
 from .scene import SceneRun, SkyScene
 
 NO_FAULT = "(no fault)"
+NO_OUTPUT = "(none)"
 PLAY_SPEEDS = ("1x", "5x", "20x", "60x")
 PLAY_FPS = 8.0
 PLOT_PANEL_WIDTH = 500
@@ -92,7 +93,8 @@ class Session:
         self.gui = client.gui
         self.scenario = scenario
         self.presets = dict(presets or {})
-        self.scheduler = CoalescingScheduler(on_error=self._show_error)
+        self.scheduler = CoalescingScheduler(("recompute", "panel", "time"),
+                                             on_error=self._show_error)
         self.timing = Timing()
         self.result: ScenarioResult | None = None
         self.view: RunView | None = None
@@ -152,6 +154,7 @@ class Session:
         # Plots and teaching text in their own dockable panel.
         self.plot_panel = gui.add_panel()
         with self.plot_panel.add_tab("Plots"):
+            self.per_sat_pick = gui.add_dropdown("Per-satellite panel", [NO_OUTPUT])
             self.plots_folder = gui.add_folder("Panels")
         with self.plot_panel.add_tab("Learn"):
             self.teach_md = gui.add_markdown("")
@@ -160,11 +163,10 @@ class Session:
         gui.main_panel.dock_left()
         gui.main_panel.set_width(340)
 
-        recompute_on = (self.sigma, self.p_fa, self.mask, self.seed, self.algorithm)
-        for h in recompute_on:
+        for h in (self.sigma, self.p_fa, self.mask, self.seed):
             h.on_update(lambda _e: self._on_control())
         self.preset.on_update(lambda _e: self._on_preset())
-        self.algorithm.on_update(lambda _e: self._build_option_controls())
+        self.algorithm.on_update(lambda _e: self._on_algorithm())
         for h in (self.fault_sat, self.fault_kind, self.fault_bias, self.fault_rate,
                   self.fault_t0, self.fault_t1):
             h.on_update(lambda _e: self._on_fault_edit())
@@ -172,13 +174,14 @@ class Session:
         self.fault_add.on_click(lambda _e: self._on_fault_add())
         self.fault_remove.on_click(lambda _e: self._on_fault_remove())
         self.time.on_update(lambda _e: self._on_time())
+        self.per_sat_pick.on_update(lambda _e: self._on_per_sat_pick())
         self.play.on_update(lambda _e: self._on_play())
         self.export_csv.on_click(lambda _e: self.download_csv())
         self.export_html.on_click(lambda _e: self.download_html())
-        self._build_option_controls(recompute=False)
+        self._build_option_controls()
         self._sync_fault_controls()
 
-    def _build_option_controls(self, recompute: bool = True) -> None:
+    def _build_option_controls(self) -> None:
         """One control per option of the chosen algorithm (``AlgorithmSpec.options``)."""
         for h in self._option_handles.values():
             h.remove()
@@ -216,7 +219,9 @@ class Session:
             "seed": int(self.seed.value),
         }
         spec = algorithms.get(self.algorithm.value)
-        for key, h in self._option_handles.items():
+        for key, h in list(self._option_handles.items()):
+            if key not in spec.options:  # controls of the previous algorithm, going away
+                continue
             default = spec.options[key]
             val = h.value
             if isinstance(default, bool):
@@ -227,6 +232,12 @@ class Session:
                 val = float(val)
             changes[key] = val
         return self.scenario.replace(**changes)
+
+    def _on_algorithm(self) -> None:
+        if self._syncing:
+            return
+        self._build_option_controls()
+        self.request_recompute()
 
     def _on_control(self) -> None:
         if not self._syncing:
@@ -251,7 +262,7 @@ class Session:
             self.fault_t1.value = float(s.duration_s)
             self.time.value = 0.0
             self._fault_index = 0 if s.faults else -1
-            self._build_option_controls(recompute=False)
+            self._build_option_controls()
         finally:
             self._syncing = False
         self._sync_fault_controls()
@@ -381,7 +392,8 @@ class Session:
         result = self._run_cached(scenario)
         t1 = time.perf_counter()
         view = run_view(result)
-        figs = {key: build(view) for key, build in panels.panels_for(view)}
+        figs = {key: build(view)
+                for key, build in panels.panels_for(view, self.per_sat_pick.value)}
         verdict = teaching.verdict(view, scenario.p_fa)
         t2 = time.perf_counter()
         self.result, self.view, self.figures = result, view, figs
@@ -400,6 +412,32 @@ class Session:
                                f"{len(result.data.sat_names)} satellites · update "
                                f"{1e3 * tm.total_s:.0f} ms")
         self._refresh_fault_sats()
+        self._refresh_per_sat_pick()
+
+    def _refresh_per_sat_pick(self) -> None:
+        keys = panels.per_sat_keys(self.view) or [NO_OUTPUT]
+        if list(self.per_sat_pick.options) != keys:
+            self._syncing = True
+            try:
+                current = self.per_sat_pick.value
+                self.per_sat_pick.options = keys
+                self.per_sat_pick.value = current if current in keys else keys[0]
+            finally:
+                self._syncing = False
+
+    def _on_per_sat_pick(self) -> None:
+        if not self._syncing:
+            self.scheduler.submit("panel", self._rebuild_per_sat)
+
+    def _rebuild_per_sat(self) -> None:
+        """Show another per-satellite output: one figure rebuilt, no engine run."""
+        if self.view is None or self.per_sat_pick.value == NO_OUTPUT:
+            return
+        from .figures import per_sat_figure
+
+        fig = per_sat_figure(self.view, self.per_sat_pick.value)
+        self.figures["per_sat"] = fig
+        self.plot_handles["per_sat"].figure = fig.at(self.i_epoch)
 
     def _run_cached(self, scenario: Scenario) -> ScenarioResult:
         """Run the scenario, or reuse the result of an identical recent one (a run is a

@@ -180,9 +180,11 @@ def test_panel_registry_shows_new_algorithm_outputs_without_dashboard_changes(de
                    mf=rng.normal(size=(e, s)))
     view = figures.RunView(**{**default_view.__dict__, "table": table, "per_sat": per_sat})
     keys = [k for k, _ in panels.panels_for(view)]
-    assert keys[:4] == ["detection", "isolation", "errors", "sky"]
-    assert "per_sat:llr" in keys and "per_sat:mf" in keys
-    built = dict((k, b(view)) for k, b in panels.panels_for(view))
+    assert keys == ["detection", "isolation", "errors", "sky", "per_sat", "columns"]
+    assert panels.per_sat_keys(view) == ["fault_size_m", "isolability", "llr", "mf"]
+    built = dict((k, b(view)) for k, b in panels.panels_for(view, "mf"))
+    assert built["per_sat"].key == "per_sat:mf"
+    assert len(built["per_sat"].data) >= int(view.used.any(axis=0).sum())
     err_names = [tr["name"] for tr in built["errors"].data]
     assert "HPL" in err_names and "VPL" in err_names
     col_names = [tr["name"] for tr in built["columns"].data]
@@ -370,9 +372,28 @@ def test_every_registered_algorithm_is_offered_with_its_options(session):
     from raimcore import algorithms
 
     assert list(session.algorithm.options) == algorithms.names()
-    spec = algorithms.get(session.algorithm.value)
-    assert set(session._option_handles) == set(spec.options)
-    assert spec.label in session.teach_md.content
+    for name in algorithms.names():
+        session.algorithm.value = name
+        _settle(session)
+        spec = algorithms.get(name)
+        assert session.result.scenario.algorithm == name
+        assert not session.status.content.startswith("**Error")
+        assert set(session._option_handles) == set(spec.options)
+        assert spec.label in session.teach_md.content
+        assert "detection" in session.figures and "errors" in session.figures
+        # every per-epoch output column of the algorithm is drawn in some panel
+        drawn = {tr.get("name") for f in session.figures.values() for tr in f.data}
+        for col in session.result.output.columns:
+            arr = np.asarray(session.result.output.columns[col])
+            if arr.dtype.kind == "f" and np.isfinite(arr).any() and col != "dof":
+                assert col in drawn or col in ("hpl_m", "vpl_m"), col
+        # the generic per-satellite panel can show each unclaimed per-satellite output
+        for key in session.per_sat_pick.options:
+            if key == "(none)":
+                continue
+            session.per_sat_pick.value = key
+            _settle(session)
+            assert session.figures["per_sat"].key == f"per_sat:{key}"
 
 
 def test_preset_switch_loads_the_scenario(session):
