@@ -35,7 +35,8 @@ from .table import ResultTable
 from .trajectories import TRAJECTORY_KINDS, flight_profile, static, straight_line
 
 __all__ = ["Scenario", "ScenarioResult", "Restrict", "load_scenario", "list_scenarios",
-           "build_epoch_data", "run_scenario", "make_table", "parse_value", "summarize"]
+           "build_epoch_data", "run_scenario", "run_algorithm", "make_table", "parse_value",
+           "summarize"]
 
 
 @dataclass(frozen=True)
@@ -369,8 +370,31 @@ class ScenarioResult:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
-def _names(mask_row, sat_names) -> str:
-    return "+".join(n for n, m in zip(sat_names, mask_row, strict=True) if m)
+def _names(mask, sat_names) -> np.ndarray:
+    """Per row of a boolean ``(E, S)`` mask, the selected names joined by "+" (object array).
+
+    Rows repeat (the same visible set for minutes), so each distinct row is joined once.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    if mask.size == 0:
+        return np.full(mask.shape[0], "", dtype=object)
+    uniq, inverse = np.unique(mask, axis=0, return_inverse=True)
+    joined = np.array(["+".join(n for n, m in zip(sat_names, row, strict=True) if m)
+                       for row in uniq], dtype=object)
+    return joined[inverse.reshape(-1)]
+
+
+def run_algorithm(spec, data: EpochData, options: dict[str, Any]) -> AlgorithmOutput:
+    """Run ``spec`` on the satellites used at least once, then map back to all of them.
+
+    Satellites never above the mask cannot matter to any algorithm; dropping them first
+    makes every per-satellite array (and the S x S projectors) several times smaller.
+    """
+    cols = np.flatnonzero(data.used.any(axis=0))
+    small = data.take_sats(cols)
+    out = spec.run(small, options)
+    check_output(spec.name, small, out)
+    return out.expand_sats(cols, data.n_sats)
 
 
 def check_output(name: str, data: EpochData, out: AlgorithmOutput) -> None:
@@ -400,13 +424,19 @@ def make_table(data: EpochData, out: AlgorithmOutput) -> ResultTable:
     faulty = (data.fault_bias_m != 0) & data.used
     # Theoretical detection probability of the snapshot chi-square test for the injected
     # faults, at the true geometry (spec section 1).
-    cc = clock_columns(data.sys_idx, len(data.systems))
-    h, _ = geometry_rows(data.pos_sv_ecef_m, truth, cc)
-    w = np.where(data.used, 1.0 / data.sigma_m**2, 0.0)
-    proj, _ = _whitened_projector(h, w)
-    n_states = 3 + np.sum(data.used[..., None] & (cc[None] > 0), axis=1).astype(bool).sum(-1)
-    dof = data.used.sum(-1) - n_states
-    pd = detection_probability(proj, data.fault_bias_m, w, dof, data.p_fa)
+    pd = np.full(data.n_epochs, np.nan)
+    rows = np.flatnonzero(faulty.any(axis=1))
+    if rows.size:
+        cols = np.flatnonzero(data.used[rows].any(axis=0))
+        used = data.used[np.ix_(rows, cols)]
+        cc = clock_columns(data.sys_idx[cols], len(data.systems))
+        h, _ = geometry_rows(data.pos_sv_ecef_m[rows][:, cols], truth[rows], cc)
+        w = np.where(used, 1.0 / data.sigma_m[np.ix_(rows, cols)] ** 2, 0.0)
+        proj, _ = _whitened_projector(h, w)
+        n_states = 3 + np.any(used[..., None] & (cc[None] > 0), axis=1).sum(-1)
+        dof = used.sum(-1) - n_states
+        pd[rows] = detection_probability(proj, data.fault_bias_m[np.ix_(rows, cols)], w, dof,
+                                         data.p_fa)
     thr = np.asarray(out.threshold, dtype=float)
     stat = np.asarray(out.statistic, dtype=float)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -421,8 +451,8 @@ def make_table(data: EpochData, out: AlgorithmOutput) -> ResultTable:
         "normalised": normalised,
         "alarm": np.asarray(out.alarm, dtype=bool),
         "isolated": names[np.where(iso >= 0, iso, -1)],
-        "excluded": np.array([_names(r, data.sat_names) for r in out.excluded], dtype=object),
-        "faulty_truth": np.array([_names(r, data.sat_names) for r in faulty], dtype=object),
+        "excluded": _names(out.excluded, data.sat_names),
+        "faulty_truth": _names(faulty, data.sat_names),
         "hpe_before_m": np.hypot(err_b[:, 0], err_b[:, 1]),
         "hpe_after_m": np.hypot(err_a[:, 0], err_a[:, 1]),
         "vpe_before_m": np.abs(err_b[:, 2]),
@@ -498,8 +528,6 @@ def run_scenario(s: Scenario | str, **overrides) -> ScenarioResult:
     elif overrides:
         s = s.replace(**overrides)
     data = build_epoch_data(s)
-    spec = algorithms.get(s.algorithm)
-    out = spec.run(data, s.algorithm_options())
-    check_output(spec.name, data, out)
+    out = run_algorithm(algorithms.get(s.algorithm), data, s.algorithm_options())
     table = make_table(data, out)
     return ScenarioResult(s, data, out, table, summarize(table))

@@ -1,5 +1,6 @@
 #!/bin/sh
-# Make sure Debian's headless Chromium is present for the browser test (tests/test_browser*).
+# Make sure Debian's headless Chromium is present for the browser test
+# (tests/test_dashboard_browser.py).
 # Playwright drives /usr/bin/chromium; no browser is ever downloaded by a test tool.
 set -e
 if [ -x /usr/bin/chromium ]; then

@@ -11,6 +11,7 @@ satellites of the scenario (not all visible at every epoch: see ``EpochData.used
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -80,9 +81,23 @@ class EpochData:
     def n_sats(self) -> int:
         return len(self.sat_names)
 
+    def take_sats(self, cols) -> EpochData:
+        """The same epochs restricted to the satellites at indices ``cols``."""
+        cols = np.asarray(cols, dtype=int)
+        changes = {"sat_names": tuple(self.sat_names[c] for c in cols),
+                   "sys_idx": self.sys_idx[cols]}
+        for name in SAT_AXIS_FIELDS:
+            changes[name] = getattr(self, name)[:, cols]
+        return dataclasses.replace(self, **changes)
+
     def rng(self, stream: int = 0) -> np.random.Generator:
         """A generator for the algorithm's own randomness, independent of the noise draw."""
         return np.random.default_rng(np.random.SeedSequence([int(self.seed), 1000 + stream]))
+
+
+#: EpochData fields of shape (E, S, ...): a new per-satellite field must be listed here.
+SAT_AXIS_FIELDS = ("pos_sv_ecef_m", "pr_m", "used", "az_rad", "el_rad", "sigma_m",
+                   "fault_bias_m")
 
 
 @dataclass(frozen=True)
@@ -116,6 +131,34 @@ class AlgorithmOutput:
     isolated: np.ndarray
     per_sat: Mapping[str, np.ndarray] = field(default_factory=dict)
     columns: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    def expand_sats(self, cols, n_sats: int) -> AlgorithmOutput:
+        """Map an output computed on the satellites ``cols`` back to ``n_sats`` satellites.
+
+        Satellites not in ``cols`` get ``False`` (excluded), NaN (float arrays), ``""``
+        (strings) in the per-satellite arrays; ``isolated`` indices are translated.
+        """
+        cols = np.asarray(cols, dtype=int)
+
+        def widen(a):
+            a = np.asarray(a)
+            if a.dtype == bool:
+                fill = False
+            elif a.dtype.kind in "fc":
+                fill = np.nan
+            elif a.dtype.kind in "iu":
+                fill = -1
+            else:
+                fill = ""
+            full = np.full((a.shape[0], n_sats) + a.shape[2:], fill, dtype=a.dtype)
+            full[:, cols] = a
+            return full
+
+        iso = np.asarray(self.isolated)
+        return dataclasses.replace(
+            self, excluded=widen(self.excluded),
+            isolated=np.where(iso >= 0, cols[np.maximum(iso, 0)], -1),
+            per_sat={k: widen(v) for k, v in self.per_sat.items()})
 
 
 @dataclass(frozen=True)

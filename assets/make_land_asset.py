@@ -9,7 +9,7 @@ committed to the repository. Nothing is fetched when the dashboard runs.
 Regenerate with (into a throw-away directory, not the project venv)::
 
     python -m pip install --no-deps --target /tmp/glm global-land-mask
-    PYTHONPATH=/tmp/glm python scripts/make_land_asset.py
+    PYTHONPATH=/tmp/glm python assets/make_land_asset.py
 
 Output arrays: ``land`` (180, 360) bool, row 0 = latitude band [89, 90) deg north... i.e.
 row ``i`` covers latitudes ``90 - i - 1 .. 90 - i`` deg and column ``j`` longitudes
