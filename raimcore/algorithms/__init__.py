@@ -16,6 +16,7 @@ __all__ = ["AlgorithmOutput", "AlgorithmSpec", "EpochData", "get", "names", "reg
 _MODULES = [
     "parity_fde",
     "mss",
+    "pf_llr",
 ]
 
 _loaded = False
