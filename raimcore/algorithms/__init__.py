@@ -17,6 +17,7 @@ _MODULES = [
     "parity_fde",
     "mss",
     "pf_llr",
+    "ekf",
 ]
 
 _loaded = False
