@@ -571,26 +571,30 @@ def calibrate_tau(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, n_sys: int, noise,
                        np.arange(e_n, dtype=float), sys_idx, n_sys, noise, model,
                        n_particles=n_particles, window=window, burn_in=burn_in, rng=rng)
     beta = run.beta[:, run.armed]
-    return Calibration(threshold_from_samples(beta, p_fa_window), beta, p_fa_window)
+    return Calibration(threshold_from_samples(beta, p_fa_window, window), beta, p_fa_window)
 
 
-def threshold_from_samples(beta, p_fa: float) -> float:
-    """``tau`` with ``P(beta > tau) = p_fa`` from fault-free samples of ``beta``.
+def threshold_from_samples(beta, p_fa: float, window: int = 1) -> float:
+    """``tau`` with ``P(beta > tau) = p_fa`` from fault-free samples ``beta`` (R, M).
 
-    The larger of the empirical ``1 - p_fa`` quantile and a normal tail fitted on the
-    centre of the sample (median, and the 50-90 % quantile spread / 1.2816). A window sum
-    of 30 LLRs is close to normal (in seed 002 the 90, 95 and 99 % quantiles sit at 1.28,
-    1.64 and 2.33 fitted standard deviations), and the fit extrapolates to a small
-    ``p_fa`` that a few thousand correlated samples cannot resolve empirically; the
-    empirical quantile takes over where the tail is heavier than normal.
+    A normal tail fitted on the centre of the sample (median, and the 50-90 % quantile
+    spread / 1.2816): a window sum of 30 LLRs is close to normal (in seed 002 the 90, 95
+    and 99 % quantiles sit at 1.28, 1.64 and 2.33 fitted standard deviations), and the fit
+    extrapolates to a small ``p_fa`` that a few thousand correlated samples cannot
+    resolve. Where the sample does resolve it (at least 5 expected exceedances among the
+    ``R M / window`` roughly independent windows), the empirical ``1 - p_fa`` quantile is
+    used if larger (a tail heavier than normal).
     """
     from scipy import stats
 
-    b = np.asarray(beta, dtype=float).ravel()
+    b = np.asarray(beta, dtype=float)
+    n_indep = b.size / max(window, 1)
     b = b[np.isfinite(b)]
     q50, q90 = np.quantile(b, [0.5, 0.9])
-    normal = q50 + stats.norm.isf(p_fa) * (q90 - q50) / stats.norm.isf(0.1)
-    return float(max(np.quantile(b, 1.0 - p_fa), normal))
+    tau = q50 + stats.norm.isf(p_fa) * (q90 - q50) / stats.norm.isf(0.1)
+    if p_fa * n_indep >= 5:
+        tau = max(tau, np.quantile(b, 1.0 - p_fa))
+    return float(tau)
 
 
 def calibration_key(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, noise, model: ProcessModel,
