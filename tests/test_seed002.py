@@ -68,3 +68,19 @@ def test_in_fault_memory():
                                   [0, 0, 0, 0, 1, 1, 0, 0, 0, 1])
     assert not _in_fault_memory(faulted, np.ones(10)).any()
     assert not _in_fault_memory(faulted, None).any()
+
+
+def test_dashboard_panels_show_beta_tau_llr_and_neff(runs):
+    pytest.importorskip("plotly")
+    from app import panels
+    from app.session import run_view
+
+    view = run_view(runs["pf-llr", 0])
+    built = {k: b(view) for k, b in panels.panels_for(view, "llr")}
+    names = [tr["name"] for tr in built["detection"].data]
+    assert {"statistic", "threshold", "alarm"} <= set(names)
+    assert built["per_sat"].key == "per_sat:llr"
+    g19 = next(tr for tr in built["per_sat"].data if tr["name"] == "G19")
+    assert g19["line"]["width"] > 2  # the faulty satellite is drawn thick
+    cols = [tr["name"] for tr in built["columns"].data]
+    assert "n_eff" in cols and "memory_epochs" not in cols
