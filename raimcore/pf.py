@@ -40,6 +40,10 @@ __all__ = ["PROCESS_MODELS", "ProcessModel", "ParticleBank", "predict", "log_lik
 PROCESS_MODELS = ("static", "cv")
 #: Particle-satellite pairs per likelihood chunk (about 0.5 MB per float64 temporary).
 _CHUNK_ELEMENTS = 65536
+#: Constant-velocity start-up: the velocity process noise starts at VEL_BOOST x the start
+#: velocity's standard deviation per sqrt(s) and decays like the position's (see
+#: run_llr_bank); tuned on seed000-step with model = "cv" (sigma 3 and 33 m).
+VEL_BOOST = 1.0
 
 
 @dataclass(frozen=True)
@@ -78,7 +82,7 @@ class ProcessModel:
 
 
 def predict(particles, dt_s: float, model: ProcessModel, rng: np.random.Generator,
-            q_scale: float = 1.0):
+            q_scale: float = 1.0, q_scale_vel: float = 1.0):
     """Draw the predicted particles from the state equation (spec section 3, "Filter").
 
     Parameters
@@ -87,7 +91,8 @@ def predict(particles, dt_s: float, model: ProcessModel, rng: np.random.Generato
     dt_s : time step (s), >= 0.
     model : the process model.
     rng : random generator.
-    q_scale : factor on every process-noise density (start-up annealing, see
+    q_scale : factor on the position and clock process-noise densities (start-up
+        annealing; the velocity noise keeps its density, see
         :func:`run_llr_bank`).
 
     Returns
@@ -95,11 +100,12 @@ def predict(particles, dt_s: float, model: ProcessModel, rng: np.random.Generato
     (..., N, D) states at k (a new array).
     """
     x = np.array(particles, dtype=float, copy=True)
-    sq = q_scale * math.sqrt(max(dt_s, 0.0))
+    sq1 = math.sqrt(max(dt_s, 0.0))
+    sq = q_scale * sq1
     noise = rng.standard_normal(x.shape)
     if model.kind == "cv":
         x[..., :3] += x[..., 3:6] * dt_s + model.q_pos_mps * sq * noise[..., :3]
-        x[..., 3:6] += model.q_vel_mps2 * sq * noise[..., 3:6]
+        x[..., 3:6] += model.q_vel_mps2 * q_scale_vel * sq1 * noise[..., 3:6]
     else:
         x[..., :3] += model.q_pos_mps * sq * noise[..., :3]
     x[..., model.clk0:] += model.q_clk_mps * sq * noise[..., model.clk0:]
@@ -304,13 +310,14 @@ class ParticleBank:
         return self.particles.shape[-2]
 
     def step(self, dt_s, pos_sv_ecef_m, pr_m, mask, sys_idx, noise,
-             rng: np.random.Generator, q_scale: float = 1.0) -> StepResult:
+             rng: np.random.Generator, q_scale: float = 1.0,
+             q_scale_vel: float = 1.0) -> StepResult:
         """Predict, weight by the likelihood, normalise, estimate, resample if needed.
 
         ``mask`` (..., S) says which measurements each filter scores (all False: predict
         only, ``log_pred = 0``). See :func:`log_likelihood` for the other arguments.
         """
-        self.particles = predict(self.particles, dt_s, self.model, rng, q_scale)
+        self.particles = predict(self.particles, dt_s, self.model, rng, q_scale, q_scale_vel)
         ll = log_likelihood(self.particles, pos_sv_ecef_m, pr_m, mask, sys_idx, noise,
                             self.model)
         # seed 002 eq. (weights): w_k = w_{k-1} p(z_k | x_k), then normalise.
@@ -499,12 +506,14 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     # started around a poor first fix moves to the truth within the burn-in instead of
     # drifting there at q_pos (minutes) while the test is armed.
     boost = max(noise.sigma_m / max(model.q_pos_mps, 1e-3), 1.0)
+    boost_vel = max(VEL_BOOST * vel_sd / max(model.q_vel_mps2, 1e-3), 1.0)
     for k in range(k0 + 1, e_n):
         frac = min((k - k0 - 1) / max(burn_in, 1), 1.0)
         q_scale = 1.0 + (boost - 1.0) * (1.0 - frac) ** 2
+        q_scale_vel = 1.0 + (boost_vel - 1.0) * (1.0 - frac) ** 2
         mask = drop & used[k][None, :] if available[k] else np.zeros((q_n, s_n), bool)
         res = bank.step(t_s[k] - t_s[k - 1], sv[k][None, None], pr[:, k][:, None, :],
-                        mask[None], sys_idx, noise, rng, q_scale)
+                        mask[None], sys_idx, noise, rng, q_scale, q_scale_vel)
         estimate[:, k] = res.estimate
         if available[k]:
             n_eff[:, k] = res.n_eff

@@ -148,6 +148,9 @@ def test_moving_receiver_with_constant_velocity_model():
     late = r.table["t_s"] > 60
     assert np.nanmax(r.table["hpe_before_m"][late]) < 15.0
     assert not r.table["alarm"].any()
+    # The paper-era noise (33 m): the filter stays locked (the EKF: about 40 m RMSE).
+    r33 = run_scenario(s.replace(sigma_m=33.0, noise="gaussian"))
+    assert r33.summary["rmse_before_m"] < 150.0
 
 
 def test_user_tau_is_used_and_calibration_is_cached(monkeypatch, tmp_path):
