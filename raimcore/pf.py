@@ -221,6 +221,31 @@ def weighted_mean(particles, weights):
     return np.einsum("...nd,...n->...d", particles, weights)
 
 
+def cov_enu_to_ecef(pos_ecef_m, cov_enu):
+    """A fix covariance ``(..., 3 + q, 3 + q)`` in ENU + clocks rotated to ECEF + clocks
+    about the fix ``pos_ecef_m`` ``(..., 3)`` (symmetrised)."""
+    pos = np.asarray(pos_ecef_m, dtype=float)
+    cov = np.asarray(cov_enu, dtype=float)
+    n = cov.shape[-1]
+    lat, lon, _ = ecef_to_geodetic(pos)
+    t = np.zeros(pos.shape[:-1] + (n, n))
+    t[..., :3, :3] = np.swapaxes(enu_rotation(lat, lon), -1, -2)  # ECEF = R^T ENU
+    t[..., 3:, 3:] = np.eye(n - 3)
+    out = t @ cov @ np.swapaxes(t, -1, -2)
+    return 0.5 * (out + np.swapaxes(out, -1, -2))
+
+
+def availability(used, sys_idx, n_sys: int):
+    """Per epoch: the number of states ``n = 3 + systems in view`` ``(E,)`` and whether
+    ``m >= n + 1`` (a filter can update and be tested) ``(E,)`` for ``used`` ``(E, S)``."""
+    from .lsq import clock_columns
+
+    used = np.asarray(used, dtype=bool)
+    cc = clock_columns(sys_idx, n_sys)
+    n_states = 3 + (used[:, :, None] & (cc[None] > 0)).any(axis=1).sum(-1)
+    return n_states, used.sum(-1) >= n_states + 1
+
+
 def initial_cloud(pos_ecef_m, clock_m, cov_enu, n_particles: int, model: ProcessModel,
                   rng: np.random.Generator, *, batch=(), vel_mean_mps=None,
                   vel_sigma_mps: float = 1.0, inflate: float = 1.0):
@@ -245,13 +270,7 @@ def initial_cloud(pos_ecef_m, clock_m, cov_enu, n_particles: int, model: Process
     pos = np.asarray(pos_ecef_m, dtype=float)
     r_n = pos.shape[0]
     q = model.n_clk
-    lat, lon, _ = ecef_to_geodetic(pos)
-    rot = enu_rotation(lat, lon)  # (R, 3, 3), ENU = rot @ ECEF
-    t = np.zeros((r_n, 3 + q, 3 + q))
-    t[:, :3, :3] = np.swapaxes(rot, -1, -2)
-    t[:, 3:, 3:] = np.eye(q)
-    cov = t @ np.asarray(cov_enu, dtype=float) @ np.swapaxes(t, -1, -2)
-    cov = 0.5 * (cov + np.swapaxes(cov, -1, -2)) + 1e-9 * np.eye(3 + q)
+    cov = cov_enu_to_ecef(pos, cov_enu) + 1e-9 * np.eye(3 + q)
     chol = np.linalg.cholesky(cov) * inflate
     shape = (r_n,) + tuple(batch) + (n_particles, 3 + q)
     z = rng.standard_normal(shape)
@@ -456,16 +475,13 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     least-squares fix of that epoch (spread by its covariance); until then everything is
     NaN / not available. Epochs with too few satellites only predict.
     """
-    from .lsq import clock_columns
 
     sv = np.asarray(pos_sv_ecef_m, dtype=float)
     pr = np.asarray(pr_m, dtype=float)
     used = np.asarray(used, dtype=bool)
     r_n, e_n, s_n = pr.shape
     q_n = s_n + 1
-    cc = clock_columns(sys_idx, n_sys)
-    n_states = 3 + (used[:, :, None] & (cc[None] > 0)).any(axis=1).sum(-1)
-    available = used.sum(-1) >= n_states + 1
+    _, available = availability(used, sys_idx, n_sys)
     estimate = np.full((r_n, e_n, q_n, model.dim), np.nan)
     n_eff = np.full((r_n, e_n, q_n), np.nan)
     llr = np.zeros((r_n, e_n, s_n))

@@ -11,7 +11,6 @@ Run: ``python tests/benchmarks/bench_pf.py`` (from the repository root).
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from raimcore import pf  # noqa: E402
 from raimcore.scenario import build_epoch_data, load_scenario  # noqa: E402
+from tests.benchmarks.bench_parity import best_of  # noqa: E402
 
 
 def setup(n_particles: int):
@@ -48,15 +48,6 @@ def run_loop(d, model, masks, cloud, epochs):
         for bank, m in zip(banks, masks, strict=True):
             bank.step(1.0, d.pos_sv_ecef_m[k], d.pr_m[k], m & d.used[k], d.sys_idx,
                       d.noise, rng)
-
-
-def best_of(fn, repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def main() -> None:
