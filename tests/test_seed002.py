@@ -84,3 +84,12 @@ def test_dashboard_panels_show_beta_tau_llr_and_neff(runs):
     assert g19["line"]["width"] > 2  # the faulty satellite is drawn thick
     cols = [tr["name"] for tr in built["columns"].data]
     assert "n_eff" in cols and "memory_epochs" not in cols
+
+
+def test_gaussian_mixture_noise_too():
+    """The same with the other heavy-tailed model (10 % outliers at 5 sigma)."""
+    pf_run = run_scenario(load_scenario("seed002", algorithm="pf-llr", noise="mixture"))
+    ekf_run = run_scenario(load_scenario("seed002", algorithm="ekf", noise="mixture"))
+    t = pf_run.table
+    assert t["alarm"].any() and np.all(t["isolated"][t["alarm"]] == "G19")
+    assert pf_run.summary["rmse_before_m"] < 0.5 * ekf_run.summary["rmse_before_m"]
