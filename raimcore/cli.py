@@ -186,6 +186,7 @@ def _add_dashboard(sub):
     p.add_argument("--scenario", default="default",
                    help="built-in scenario name or .toml file to start from "
                         "(default %(default)s)")
+    _add_recording_args(p)
     p.set_defaults(func=_cmd_dashboard)
 
 
@@ -197,6 +198,10 @@ def _cmd_dashboard(args) -> int:
                          f"'raim-studio[app]' ({exc})") from None
     from .scenario import load_scenario
 
+    if args.obs or args.nav:  # a recording: read it now, so file errors come before serving
+        args.scenario = None if args.scenario == "default" else args.scenario
+        serve(args.host, args.port, _recording_scenario(args, {}))
+        return 0
     load_scenario(args.scenario)  # fail early, with the scenario error, before serving
     serve(args.host, args.port, args.scenario)
     return 0

@@ -26,7 +26,7 @@ from .noise import make_noise
 from .rinex import ObsFile, read_nav, read_obs
 from .spp import SYSTEM_LETTER, Corrected, correct, elevation_sigma, solve
 
-__all__ = ["recording_epoch_data", "recording_scenario", "load_recording"]
+__all__ = ["recording_epoch_data", "recording_scenario", "load_recording", "receiver_ecef_m"]
 
 #: Defaults for real data (scenario keys): code noise of a geodetic receiver at the zenith,
 #: a 10-degree mask against multipath.
@@ -72,6 +72,14 @@ def recording_scenario(obs, nav, **overrides):
          "duration_s": float(t[-1]), "step_s": step, **REAL_DATA_DEFAULTS}
     d.update(overrides)
     return from_dict(d)
+
+
+def receiver_ecef_m(s) -> np.ndarray:
+    """(3,) the receiver position of a recording scenario: ``truth_ecef_m``, else the
+    header position (zeros when the file has none)."""
+    if s.truth_ecef_m:
+        return np.array(s.truth_ecef_m, dtype=float)
+    return np.array(_read_obs(_stamp(s.obs)).approx_pos_ecef_m, dtype=float)
 
 
 def _window(t_rel, t0, duration, step) -> np.ndarray:
