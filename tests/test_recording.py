@@ -151,3 +151,18 @@ def test_cli_done_when_ramp_detected_and_excluded(esbc, capsys):
     assert "mean HPE on fault-free epochs: " in out
     assert main(["run", "--obs", obs]) == 2
     assert "--obs and --nav go together" in capsys.readouterr().err
+
+
+def test_batched_spp_equals_a_per_epoch_loop(esbc):
+    import dataclasses
+
+    from raimcore.spp import correct, solve
+
+    obs, nav = read_obs(esbc[0]), read_nav(esbc[1])
+    batched = solve(correct(obs, nav)).pos_ecef_m
+    for e in (0, 77, 239):
+        one = dataclasses.replace(obs, t_gps_s=obs.t_gps_s[e:e + 1],
+                                  epoch_flag=obs.epoch_flag[e:e + 1],
+                                  codes={k: v[e:e + 1] for k, v in obs.codes.items()})
+        np.testing.assert_allclose(solve(correct(one, nav)).pos_ecef_m[0], batched[e],
+                                   atol=1e-6)

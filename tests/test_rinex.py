@@ -126,3 +126,16 @@ def test_ephemeris_gps_orbit_radius_and_bds_geo_longitude(tmp_path):
         assert abs(math.degrees(lon[0]) - 58.75) < 1.0
         assert abs(math.degrees(lat[0])) < 3.0
         assert 35.7e6 < h[0] < 35.9e6
+
+
+def test_ephemeris_unbatched_equals_batched(tmp_path):
+    eph = from_nav(read_nav(snip.nav_v3(tmp_path / "n.rnx")))
+    t = eph.toe_gps_s[:, None] + np.array([[0.0, 600.0, 1800.0]])  # (records, 3 times)
+    pos_b, clk_b = sat_pos_clock(eph.take(np.repeat(np.arange(len(eph))[:, None], 3, 1)), t)
+    assert pos_b.shape == (len(eph), 3, 3) and clk_b.shape == (len(eph), 3)
+    for k in range(len(eph)):
+        for j in range(3):
+            pos, clk = sat_pos_clock(eph.take(k), t[k, j])
+            assert pos.shape == (3,)
+            np.testing.assert_allclose(pos, pos_b[k, j], atol=1e-6)
+            assert clk == clk_b[k, j]
