@@ -41,6 +41,7 @@ examples:
   raim run seed000-ramp --out ramp.csv
   raim run default --fault G10,step,80,100,200 --fault G05,ramp,1.5,300
   raim run my_scenario.toml --algorithm parity --seed 7 --out result.json
+  raim run --obs STATION.rnx --nav BRDC.rnx --fault G05,ramp,2,600   (a real recording)
 
 --set takes any scenario key (see README, "Scenario keys") or algorithm option; values are
 TOML literals: --set sigma_m=3 --set systems='["GPS","BDS"]' --set baro=true.
@@ -55,7 +56,10 @@ def _add_run(sub):
                        description="Run one scenario through an algorithm, write the "
                        "per-epoch table and print a short summary.",
                        epilog=RUN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scenario", help="built-in scenario name (see 'raim list') or a .toml file")
+    p.add_argument("scenario", nargs="?",
+                   help="built-in scenario name (see 'raim list') or a .toml file; optional "
+                        "with --obs")
+    _add_recording_args(p)
     p.add_argument("--algorithm", "-a", help="algorithm to use (see 'raim list')")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key or algorithm option (repeatable)")
@@ -65,6 +69,29 @@ def _add_run(sub):
     p.add_argument("--out", type=Path, help="write the table to PATH.csv or PATH.json")
     p.add_argument("--quiet", "-q", action="store_true", help="print only the summary JSON")
     p.set_defaults(func=_cmd_run)
+
+
+def _add_recording_args(p):
+    p.add_argument("--obs", help="RINEX 2.11/3.0x observation file: run on this recording")
+    p.add_argument("--nav", help="RINEX navigation file (GPS and/or BeiDou) for --obs")
+
+
+def _recording_scenario(args, over: dict):
+    """The scenario of ``--obs/--nav`` (with a scenario file's keys when one is given),
+    or None without ``--obs``."""
+    if not args.obs and not args.nav:
+        if not args.scenario:
+            raise ValueError("give a scenario (see 'raim list') or --obs FILE --nav FILE")
+        return None
+    if not (args.obs and args.nav):
+        raise ValueError("--obs and --nav go together (observation and navigation file)")
+    from .recording import recording_scenario
+    from .scenario import load_scenario
+
+    rec = {"source": "rinex", "obs": args.obs, "nav": args.nav}
+    if args.scenario:
+        return load_scenario(args.scenario, **rec, **over)
+    return recording_scenario(args.obs, args.nav, **over)
 
 
 def _overrides(args) -> dict:
@@ -91,7 +118,8 @@ def _cmd_run(args) -> int:
 
     if args.out is not None and args.out.suffix.lower() not in (".csv", ".json"):
         raise ValueError(f"--out must end in .csv or .json, got {str(args.out)!r}")
-    scenario = load_scenario(args.scenario, **_overrides(args))
+    over = _overrides(args)
+    scenario = _recording_scenario(args, over) or load_scenario(args.scenario, **over)
     result = run_scenario(scenario)
     if args.out is not None:
         if args.out.suffix.lower() == ".csv":
@@ -101,6 +129,8 @@ def _cmd_run(args) -> int:
     if args.quiet:
         print(json.dumps(result.summary))
     else:
+        for note in result.data.notes:
+            print(f"note: {note}")
         print(format_summary(result))
         if args.out is not None:
             print(f"table written to {args.out}")
@@ -156,6 +186,7 @@ def _add_dashboard(sub):
     p.add_argument("--scenario", default="default",
                    help="built-in scenario name or .toml file to start from "
                         "(default %(default)s)")
+    _add_recording_args(p)
     p.set_defaults(func=_cmd_dashboard)
 
 
@@ -167,6 +198,10 @@ def _cmd_dashboard(args) -> int:
                          f"'raim-studio[app]' ({exc})") from None
     from .scenario import load_scenario
 
+    if args.obs or args.nav:  # a recording: read it now, so file errors come before serving
+        args.scenario = None if args.scenario == "default" else args.scenario
+        serve(args.host, args.port, _recording_scenario(args, {}))
+        return 0
     load_scenario(args.scenario)  # fail early, with the scenario error, before serving
     serve(args.host, args.port, args.scenario)
     return 0
