@@ -133,31 +133,72 @@ def group_chi2(h, y, groups, p_fa: float, weights=None) -> GroupStats:
     """
     h = np.asarray(h, dtype=float)
     y = np.asarray(y, dtype=float)
-    if weights is not None:
-        sw = np.sqrt(np.broadcast_to(np.asarray(weights, dtype=float), y.shape))
-        h = h * sw[..., None]
-        y = y * sw
-    hg = h[..., groups, :]  # (..., G, r, n)
-    yg = y[..., groups]  # (..., G, r)
+    member = membership_matrix(np.asarray(groups), y.shape[-1]).astype(float)
+    return _chi2_members(h, y, member, p_fa, weights)
+
+
+def _chi2_members(h, y, member, p_fa, weights=None) -> GroupStats:
+    """group_chi2 for groups given as a 0/1 membership matrix ``(G, N)`` or ``(..., G, N)``.
+
+    Normal equations by sums over members: every satellite contributes ``w h h^T``,
+    ``w h y`` and ``w y^2``; one matrix product with the membership matrix gives every
+    group's sums at once. The clock columns are one-hot, so the clock block of the normal
+    matrix is diagonal (satellite count per system) and is eliminated in closed form
+    (Schur complement); the remaining 3 x 3 position block is inverted by its adjugate.
+    All of it is element-wise arithmetic on ``(..., G)`` arrays: no per-group solve.
+    """
     n_states = h.shape[-1]
-    nm = np.swapaxes(hg, -1, -2) @ hg  # normal matrices (..., G, n, n)
-    diag = np.diagonal(nm, axis1=-2, axis2=-1)
-    present = diag > 0.0  # a system with no satellite in the group has no clock state
-    nm = nm + (~present)[..., None, :] * np.eye(n_states)
-    n_sys = np.sum(present[..., 3:], axis=-1)
-    dof = groups.shape[-1] - 3 - n_sys  # spec 4: r - 3 - systems in the group
+    q = n_states - 3
+    w = (np.ones_like(y) if weights is None
+         else np.broadcast_to(np.asarray(weights, dtype=float), y.shape))
+    hw = h * w[..., None]
+    pos = h[..., :3]
+    # Per-satellite terms: 6 of w u u^T, q x 3 of w c u^T, q of w c, 3 + q of w h y, w y^2.
+    iu = ([0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2])
+    feats = np.concatenate([
+        (hw[..., :3, None] * pos[..., None, :])[..., iu[0], iu[1]],
+        (hw[..., 3:, None] * pos[..., None, :]).reshape(y.shape + (3 * q,)),
+        hw[..., 3:],
+        hw * y[..., None],
+        (w * y * y)[..., None],
+    ], axis=-1)  # (..., N, F)
+    # (..., F, G): every group's normal-equation sums at once, one matrix product; the
+    # feature axis first keeps each term contiguous over groups for what follows.
+    sums = np.swapaxes(feats, -1, -2) @ np.swapaxes(member, -1, -2)
+    sums = np.moveaxis(sums, -2, 0)  # (F, ..., G) view
+    a00, a01, a02, a11, a12, a22 = sums[:6]
+    bm = np.moveaxis(sums[6:6 + 3 * q].reshape((q, 3) + sums.shape[1:]), (0, 1), (-2, -1))
+    d = np.moveaxis(sums[6 + 3 * q:6 + 4 * q], 0, -1)  # clock diagonal: weighted counts
+    g = np.moveaxis(sums[6 + 4 * q:6 + 4 * q + n_states], 0, -1)
+    yy = sums[-1]
+    present = d > 0.0  # a system with no satellite in the group has no clock state
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        finite = np.all(np.isfinite(nm), axis=(-2, -1))
-        nm = np.where(finite[..., None, None], nm, np.eye(n_states))
-        inv = np.linalg.inv(nm)
-        g = np.einsum("...rn,...r->...n", hg, yg)
-        theta = np.einsum("...r,...r->...", yg, yg) - np.einsum("...n,...nm,...m->...", g,
-                                                                 inv, g)
-        pdop = np.sqrt(np.einsum("...ii->...", inv[..., :3, :3]))
-    ok = finite & (dof >= 1) & np.isfinite(pdop) & (pdop < PDOP_MAX) & (pdop > 0)
+        dinv = np.where(present, 1.0 / np.where(present, d, 1.0), 0.0)
+        # Schur complement S = A - B D^-1 B^T and reduced right-hand side.
+        bd = bm * dinv[..., None]  # (..., G, q, 3)
+        s_ = [a00, a01, a02, a11, a12, a22]
+        for k, (i, j) in enumerate(zip(*iu, strict=True)):
+            s_[k] = s_[k] - np.sum(bd[..., i] * bm[..., j], axis=-1)
+        a, b, c, dd, e, f = s_
+        gc = g[..., 3:]
+        gp = g[..., :3] - np.sum(bd * gc[..., None], axis=-2)
+        c00, c01, c02 = dd * f - e * e, c * e - b * f, b * e - c * dd
+        c11, c12, c22 = a * f - c * c, b * c - a * e, a * dd - b * b
+        det = a * c00 + b * c01 + c * c02
+        quad = (c00 * gp[..., 0] ** 2 + c11 * gp[..., 1] ** 2 + c22 * gp[..., 2] ** 2
+                + 2 * (c01 * gp[..., 0] * gp[..., 1] + c02 * gp[..., 0] * gp[..., 2]
+                       + c12 * gp[..., 1] * gp[..., 2])) / det
+        theta = yy - np.sum(dinv * gc * gc, axis=-1) - quad
+        pdop = np.sqrt((c00 + c11 + c22) / det)
+        scale = a * dd * f
+        regular = np.isfinite(det) & (det > 1e-12 * np.abs(scale))
+    n_sys = np.sum(present, axis=-1)
+    dof = np.rint(np.sum(member, axis=-1)).astype(int) - 3 - n_sys  # spec 4: r - 3 - q_g
+    ok = regular & (dof >= 1) & np.isfinite(pdop) & (pdop < PDOP_MAX) & (pdop > 0)
     theta = np.where(ok, np.maximum(theta, 0.0), np.nan)
     dof_safe = np.maximum(dof, 1)
-    threshold = special.chdtri(dof_safe, p_fa)  # T: P(chi2_dof > T) = P_FA
+    values = np.unique(dof_safe)
+    threshold = special.chdtri(values, p_fa)[np.searchsorted(values, dof_safe)]  # eq. 7
     return GroupStats(theta, dof, threshold, np.where(ok, pdop, np.inf), ok)
 
 
@@ -182,10 +223,26 @@ def basic_belief(theta, dof, p_fa: float):
     """
     theta = np.asarray(theta, dtype=float)
     dof = np.asarray(dof)
-    t = special.chdtri(dof, p_fa)
-    low = 0.5 * special.chdtr(dof, theta) / special.chdtr(dof, t)
-    high = 0.5 + 0.5 * (1.0 - special.chdtrc(dof, theta) / special.chdtrc(dof, t))
-    return np.where(theta <= t, low, high)
+    theta, dof = np.broadcast_arrays(theta, dof)
+    out = np.full(theta.shape, np.nan)
+    for d in np.unique(dof):  # a handful of dof values: closed forms for 1 and 2
+        sel = dof == d
+        x = theta[sel]
+        t = float(special.chdtri(d, p_fa))
+        cdf, sf = _chi2_cdf_sf(x, int(d))
+        cdf_t, sf_t = _chi2_cdf_sf(np.array(t), int(d))
+        out[sel] = np.where(x <= t, 0.5 * cdf / cdf_t, 0.5 + 0.5 * (1.0 - sf / sf_t))
+    return out if out.ndim else float(out)
+
+
+def _chi2_cdf_sf(x, dof: int):
+    """chi2(dof) CDF and survival function, each computed directly (no 1 - F)."""
+    if dof == 1:
+        z = np.sqrt(0.5 * np.maximum(x, 0.0))
+        return special.erf(z), special.erfc(z)
+    if dof == 2:
+        return -np.expm1(-0.5 * x), np.exp(-0.5 * x)
+    return special.chdtr(dof, x), special.chdtrc(dof, x)
 
 
 def combine_pair(m1_f, alpha1, m2_f, alpha2):
@@ -331,18 +388,10 @@ def _systems_ok(h, idx):
 
 def _gather_chi2(h, y, idx, p_fa, weights_lsq):
     """group_chi2 for per-run index sets ``idx (B, D, k)`` (groups that differ per run)."""
-    hb = np.take_along_axis(h[:, None, :, :], idx[..., None], axis=-2)  # (B, D, k, n)
-    yb = np.take_along_axis(y[:, None, :], idx, axis=-1)  # (B, D, k)
-    wb = None
-    if weights_lsq is not None and np.ndim(weights_lsq) > 0:
-        wb = np.take_along_axis(np.broadcast_to(weights_lsq, y.shape)[:, None, :], idx,
-                                axis=-1)
-    elif weights_lsq is not None:
-        wb = weights_lsq
-    k = idx.shape[-1]
-    st = group_chi2(hb, yb, np.arange(k)[None, :], p_fa, wb)  # one group per (run, set)
-    return GroupStats(*(getattr(st, f)[..., 0] for f in ("theta", "dof", "threshold", "pdop",
-                                                          "ok")))
+    b, d, _ = idx.shape
+    member = np.zeros((b, d, y.shape[-1]))
+    np.put_along_axis(member, idx, 1.0, axis=-1)
+    return _chi2_members(h, y, member, p_fa, weights_lsq)
 
 
 def _masked_chi2(h, y, w, mask, p_fa):
