@@ -403,6 +403,9 @@ def run_study(study: Study, *, workers: int = 1, dask: str | None = None,
     bar = _Progress(len(todo), progress, study.name)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
+        if ledger.exists() and not ledger.read_text().endswith("\n"):
+            with ledger.open("a") as f:  # a line cut by an interruption: start afresh
+                f.write("\n")
 
     def finish(s, part):
         for a, v in part.items():
