@@ -83,8 +83,7 @@ def run_multi_fault(data: EpochData, isolate: Isolator, score_name: str,
         pos_before_ecef_m=before.pos_ecef_m, pos_after_ecef_m=after, excluded=excluded,
         isolated=np.where(alarm & can_isolate, best, -1),
         per_sat={score_name: score},
-        columns={threshold_name: iso_thr, "n_excluded": excluded.sum(axis=-1).astype(float),
-                 "dof": dof.astype(float)},
+        columns={threshold_name: iso_thr, "dof": dof.astype(float)},
     )
 
 
