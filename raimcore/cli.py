@@ -203,6 +203,9 @@ def _add_montecarlo(sub):
     p.add_argument("--seed", type=int, default=4, help="root seed (default %(default)s)")
     p.add_argument("--bias-scale", type=float, action="append", dest="scales",
                    metavar="X", help="fault bias scale factor (repeatable; default 1 and 2)")
+    p.add_argument("--bias-unit", choices=["full", "group"], default="full",
+                   help="fault unit: P_bias of the full set (spec, default) or of one "
+                        "group (our hypothesis for the paper's unit, see README)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar on stderr (default: when stderr is a terminal)")
     p.set_defaults(func=_cmd_montecarlo)
@@ -216,7 +219,8 @@ def _cmd_montecarlo(args) -> int:
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     _, text = run_table(args.study, runs=args.runs, seed=args.seed,
-                        scales=tuple(args.scales or (1.0, 2.0)), workers=args.workers,
+                        scales=tuple(args.scales or (1.0, 2.0)), bias_unit=args.bias_unit,
+                        workers=args.workers,
                         dask=args.dask, out_dir=args.out, progress=args.progress)
     print(text)
     if args.out is not None:

@@ -23,6 +23,16 @@ def test_p_bias_matches_ncx2_and_the_spec():
     assert stats.ncx2.cdf(stats.chi2.isf(P_FA, 13), 13, lam) == pytest.approx(0.014)
 
 
+def test_group_fault_unit_is_about_twice_the_full_set_p_bias():
+    g = mc.p_bias_group_m(33.0, P_FA, 0.014)
+    lam = (g / 33.0) ** 2 / 6.0  # non-centrality of a member with mean redundancy 1/6
+    assert stats.ncx2.cdf(stats.chi2.isf(P_FA, 1), 1, lam) == pytest.approx(0.014)
+    for n in (14, 18, 22):
+        assert 1.95 < g / mc.p_bias_m(n, 33.0, P_FA, 0.014) < 2.15
+    with pytest.raises(ValueError, match="bias_unit must be one of full, group"):
+        mc.Study(bias_unit="paper")
+
+
 def test_random_geometry_has_exactly_n_visible_of_both_systems():
     h, sys_idx = mc.random_geometry(np.random.default_rng(0), 300, 16, mask_deg=5.0)
     assert h.shape == (300, 16, 5)
