@@ -164,6 +164,13 @@ def format_summary(result) -> str:
         ]
     if "hpe_nominal_mean_m" in sm:
         lines.append(f"  mean HPE on fault-free epochs: {sm['hpe_nominal_mean_m']:.1f} m")
+    if "fault_memory_epochs" in sm:
+        lines.append(f"  epochs after a fault still in the algorithm's memory (not counted as "
+                     f"fault-free): {sm['fault_memory_epochs']}")
+    if "rmse_before_m" in sm:
+        lines.append(f"  3-D position RMSE: before isolation {sm['rmse_before_m']:.2f} m, "
+                     f"after {sm['rmse_after_m']:.2f} m"
+                     + (f"; mean N_eff {sm['n_eff_mean']:.1f}" if "n_eff_mean" in sm else ""))
     if "hpl_mean_m" in sm:
         lines.append(f"  mean HPL {sm['hpl_mean_m']:.1f} m, mean VPL {sm['vpl_mean_m']:.1f} m"
                      + (f"; available (HPL <= HAL {s.hal_m:g} m and VPL <= VAL {s.val_m:g} m): "

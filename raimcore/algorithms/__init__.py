@@ -19,6 +19,8 @@ _MODULES = [
     "groupfusion_gf",
     "groupfusion_rs",
     "groupfusion_qv",
+    "pf_llr",
+    "ekf",
 ]
 
 _loaded = False

@@ -1,0 +1,174 @@
+"""Particle-filter RAIM with windowed log-likelihood ratios (seed 002, spec section 3).
+
+A bank of s + 1 SIR particle filters (:mod:`raimcore.pf`): the main filter uses every
+satellite, auxiliary filter j every satellite but j. Each epoch, each filter scores its
+own measurement set with its predictive likelihood; the LLR of "satellite j faulty" is
+``s_j(k) = ln p_aux_j(y^(-j)) - ln p_main(y)``, summed over a sliding window of W epochs.
+``beta(k) = max_j S_j(k)`` is compared with a threshold ``tau`` calibrated by fault-free
+Monte Carlo runs of the same bank (cached per configuration); on an alarm the satellite
+``argmax_j S_j`` is named and excluded: the position after exclusion is auxiliary filter
+j's estimate.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._validate import check_choice, check_int, check_positive, check_probability
+from ..pf import (
+    PROCESS_MODELS,
+    ProcessModel,
+    cached_tau,
+    calibrate_tau,
+    calibration_key,
+    robust_fix,
+    run_llr_bank,
+)
+from .base import (
+    STATUS_NOT_ARMED,
+    STATUS_OK,
+    STATUS_UNAVAILABLE,
+    AlgorithmOutput,
+    AlgorithmSpec,
+    EpochData,
+    register,
+)
+
+SUMMARY = (
+    "A particle filter follows the receiver position and clock with a cloud of N "
+    "candidate states, weighted by how well each explains the pseudoranges under the "
+    "real, heavy-tailed noise model, so an outlier pulls it far less than a Kalman "
+    "filter. A bank of filters runs side by side: one with every satellite and one "
+    "without each satellite. When satellite j is faulty, the filter without j predicts "
+    "the measurements it sees much better than the main filter predicts all of them: "
+    "the log-likelihood ratio s_j grows. Summed over a window of W epochs, the largest "
+    "ratio beta is compared with a threshold tau found by simulating fault-free runs; "
+    "above it the satellite with the largest ratio is named and excluded."
+)
+
+EQUATIONS = r"""
+- State $x = [r, c\,\delta t]$, static: $x_k = x_{k-1} + w_k$; pseudorange
+  $\rho_i = \lVert r - s_i\rVert + c\,\delta t + v_i$, $v_i$ heavy-tailed
+- Weights $w_k^{(i)} \propto w_{k-1}^{(i)} p(y_k \mid x_k^{(i)})$,
+  $N_{eff} = 1 / \sum_i (w_k^{(i)})^2$, resample when $N_{eff} < 2N/3$
+- Predictive likelihood $p(y_k \mid Y_{k-1}) \approx \sum_i w_{k-1}^{(i)} p(y_k \mid x_k^{(i)})$
+- LLR $s_j(k) = \ln p_{aux,j}(y_k^{(-j)} \mid Y_{k-1}) - \ln p_{main}(y_k \mid Y_{k-1})$
+- Window $S_j(k) = \sum_{t=k-W+1}^{k} s_j(t)$, $\beta(k) = \max_j S_j(k)$
+- Alarm $\beta(k) > \tau$; faulty $\hat\jmath = \arg\max_j S_j(k)$, excluded
+"""
+
+#: Monte Carlo size of the threshold calibration (runs x armed epochs per run).
+CALIBRATION_RUNS = 64
+CALIBRATION_ARMED_EPOCHS = 60
+#: Seed of the calibration runs: fixed, so a configuration always gets the same tau.
+CALIBRATION_SEED = 2002
+
+
+def process_model(options: dict, n_clk: int) -> ProcessModel:
+    """The :class:`ProcessModel` named by the scenario options (shared with ``ekf``)."""
+    return ProcessModel(
+        kind=check_choice("model", options.get("model", "static"), PROCESS_MODELS),
+        n_clk=n_clk,
+        q_pos_mps=check_positive("q_pos_mps", options.get("q_pos_mps", 0.1), allow_zero=True),
+        q_vel_mps2=check_positive("q_vel_mps2", options.get("q_vel_mps2", 0.5),
+                                  allow_zero=True),
+        q_clk_mps=check_positive("q_clk_mps", options.get("q_clk_mps", 0.1), allow_zero=True))
+
+
+def _threshold(data: EpochData, model: ProcessModel, n: int, window: int, burn_in: int,
+               p_fa: float, cache: str, ref: int) -> float:
+    """Calibrated tau for the satellites and geometry of epoch ``ref`` (see module doc)."""
+    u = data.used[ref]
+    fix = robust_fix(data.pos_sv_ecef_m[ref], data.pr_m[ref][None], u, data.sys_idx,
+                     len(data.systems), data.noise)
+    rx = np.nan_to_num(fix.pos_ecef_m[0])
+    sv, sys_idx = data.pos_sv_ecef_m[ref][u], data.sys_idx[u]
+    config = dict(n_particles=n, window=window, burn_in=burn_in, p_fa_window=p_fa,
+                  n_runs=CALIBRATION_RUNS, n_armed=CALIBRATION_ARMED_EPOCHS)
+    key = calibration_key(sv, rx, sys_idx, data.noise, model, **config)
+
+    def compute():
+        rng = np.random.default_rng(CALIBRATION_SEED)
+        return calibrate_tau(sv, rx, sys_idx, len(data.systems), data.noise, model, rng=rng,
+                             **config).tau
+
+    return cached_tau(key, compute, cache=cache)
+
+
+def _parse_tau(value) -> float | None:
+    """``tau`` option: ``"auto"`` / ``None`` (calibrated) or a finite number."""
+    if value is None or (isinstance(value, str) and value.strip().lower() in
+                         ("auto", "none", "")):
+        return None
+    try:
+        tau = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"tau must be 'auto' (calibrated) or a number, got {value!r}") \
+            from None
+    if not np.isfinite(tau):
+        raise ValueError(f"tau must be 'auto' (calibrated) or a finite number, got {value!r}")
+    return tau  # any real number: LLRs may be negative
+
+
+def run(data: EpochData, options: dict) -> AlgorithmOutput:
+    """Run the bank of particle filters and the windowed LLR test on every epoch.
+
+    Options: ``n_particles`` (N), ``window`` (W epochs), ``burn_in`` (epochs after the
+    first fix before LLRs are accumulated), ``tau`` (threshold; ``"auto"`` or ``None``:
+    calibrated),
+    ``p_fa_window`` (calibration target, false alarms per window), ``tau_cache``
+    (``"memory"``, ``"disk"``, ``"off"``), ``model``, ``q_pos_mps``, ``q_vel_mps2``,
+    ``q_clk_mps`` (process model, :class:`raimcore.pf.ProcessModel`).
+    """
+    n = check_int("n_particles", options.get("n_particles", 100), 2, 1_000_000)
+    window = check_int("window", options.get("window", 30), 1, 100_000)
+    burn_in = check_int("burn_in", options.get("burn_in", 30), 0, 100_000)
+    p_fa = check_probability("p_fa_window", options.get("p_fa_window", 0.01))
+    cache = check_choice("tau_cache", options.get("tau_cache", "memory"),
+                         ("memory", "disk", "off"))
+    tau_opt = _parse_tau(options.get("tau", "auto"))
+    model = process_model(options, len(data.systems))
+    e_n, s_n = data.pr_m.shape
+    bank = run_llr_bank(data.pos_sv_ecef_m, data.pr_m[None], data.used, data.t_s,
+                        data.sys_idx, len(data.systems), data.noise, model, n_particles=n,
+                        window=window, burn_in=burn_in, rng=data.rng(0))
+    armed = bank.armed
+    tau = np.nan
+    if tau_opt is not None:
+        tau = tau_opt
+    elif armed.any():
+        tau = _threshold(data, model, n, window, burn_in, p_fa, cache,
+                         int(np.flatnonzero(armed)[0]))
+    beta = bank.beta[0]
+    alarm = armed & (beta > tau)
+    faulty = np.where(alarm, bank.argmax[0], -1)
+    status = np.where(armed, STATUS_OK, np.where(bank.available, STATUS_NOT_ARMED,
+                                                 STATUS_UNAVAILABLE)).astype(object)
+    pos_before = np.where(bank.available[:, None], bank.estimate[0, :, 0, :3], np.nan)
+    aux = bank.estimate[0, np.arange(e_n), 1 + np.maximum(faulty, 0), :3]
+    pos_after = np.where(alarm[:, None], aux, pos_before)
+    excluded = np.zeros((e_n, s_n), dtype=bool)
+    excluded[np.flatnonzero(alarm), faulty[alarm]] = True
+    return AlgorithmOutput(
+        status=status, statistic=np.where(armed, beta, np.nan),
+        threshold=np.where(armed, tau, np.nan), alarm=alarm,
+        pos_before_ecef_m=pos_before, pos_after_ecef_m=pos_after, excluded=excluded,
+        isolated=faulty,
+        per_sat={"llr": np.where(armed[:, None], bank.cum_llr[0], np.nan)},
+        columns={"beta": np.where(armed, beta, np.nan), "n_eff": bank.n_eff[0, :, 0],
+                 "memory_epochs": np.full(e_n, window)},
+    )
+
+
+SPEC = register(AlgorithmSpec(
+    name="pf-llr",
+    label="Particle filter + LLR (seed 002)",
+    summary=SUMMARY,
+    equations=EQUATIONS,
+    run=run,
+    options={"n_particles": 100, "window": 30, "burn_in": 30, "tau": "auto",
+             "p_fa_window": 0.01, "tau_cache": "memory", "model": "static",
+             "q_pos_mps": 0.1, "q_vel_mps2": 0.5, "q_clk_mps": 0.1},
+    reference="Particle filter and log-likelihood ratio RAIM (seed 002): SIR particle "
+              "filter bank, windowed cumulative LLR, N = 100, W = 30.",
+))

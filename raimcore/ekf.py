@@ -1,0 +1,173 @@
+"""Extended Kalman filter on the receiver state with an innovation chi-square RAIM test.
+
+The baseline of seed 002 (spec section 3, "Baseline"): the same state and process model as
+the particle filters (:class:`raimcore.pf.ProcessModel`: ECEF position, optional velocity,
+one clock per system), the measurement noise taken as Gaussian with the noise model's
+standard deviation. Batched over a leading axis of independent realisations ``R``.
+
+Test: the normalised innovation squared ``NIS = nu^T S^-1 nu`` with ``S = H P H^T + R`` is
+chi-square with ``m`` degrees of freedom without a fault (Gaussian noise); alarm when it
+exceeds ``chi2.ppf(1 - p_fa, m)``. With ``exclude=True`` the satellite with the largest
+normalised innovation ``|nu_i| / sqrt(S_ii)`` is left out of that epoch's update.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from .lsq import clock_columns, wls
+from .pf import ProcessModel
+
+__all__ = ["EkfRun", "run_ekf"]
+
+
+@dataclass(frozen=True)
+class EkfRun:
+    """An EKF run over ``E`` epochs for ``R`` realisations, ``S`` satellites.
+
+    Attributes
+    ----------
+    estimate : (R, E, D) state after the update (NaN before the first fix).
+    nis : (R, E) normalised innovation squared over the used satellites (NaN where no test).
+    threshold : (E,) ``chi2.ppf(1 - p_fa, m)``.
+    norm_innov : (R, E, S) ``|nu_i| / sqrt(S_ii)`` (NaN where unused).
+    alarm : (R, E) bool, ``nis > threshold``.
+    worst : (R, E) int, the satellite with the largest normalised innovation (-1 if none).
+    excluded : (R, E, S) bool, left out of the update (``exclude=True`` only).
+    available : (E,) bool, ``m >= n + 1`` and the filter started.
+    """
+
+    estimate: np.ndarray
+    nis: np.ndarray
+    threshold: np.ndarray
+    norm_innov: np.ndarray
+    alarm: np.ndarray
+    worst: np.ndarray
+    excluded: np.ndarray
+    available: np.ndarray
+
+
+def _transition(model: ProcessModel, dt_s: float):
+    """State transition F (D, D) and process covariance Q (D, D) of ``model`` over ``dt_s``."""
+    d = model.dim
+    f = np.eye(d)
+    q = np.zeros(d)
+    q[:3] = model.q_pos_mps**2 * dt_s
+    if model.kind == "cv":
+        f[:3, 3:6] = dt_s * np.eye(3)
+        q[3:6] = model.q_vel_mps2**2 * dt_s
+    q[model.clk0:] = model.q_clk_mps**2 * dt_s
+    return f, np.diag(q)
+
+
+def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m: float,
+            model: ProcessModel, p_fa: float, *, exclude: bool,
+            init_inflate: float = 3.0) -> EkfRun:
+    """Run the EKF and its innovation test over every epoch.
+
+    Parameters
+    ----------
+    pos_sv_ecef_m : (E, S, 3) satellite positions (m).
+    pr_m : (R, E, S) pseudoranges (m), NaN where unused.
+    used : (E, S) bool.
+    t_s : (E,) epoch times (s).
+    sys_idx : (S,) system index; n_sys : number of clocks (``model.n_clk``).
+    sigma_m : measurement standard deviation the filter assumes (m).
+    model : process model.
+    p_fa : false-alarm probability per epoch of the chi-square test.
+    exclude : on an alarm, leave the satellite with the largest normalised innovation out
+        of the update.
+    init_inflate : factor on the first fix's standard deviations for the initial P.
+
+    Returns
+    -------
+    EkfRun. The filter starts at the first epoch with ``m >= n + 1`` from a weighted least
+    squares fix; epochs with too few satellites only predict.
+    """
+    sv = np.asarray(pos_sv_ecef_m, dtype=float)
+    pr = np.asarray(pr_m, dtype=float)
+    used = np.asarray(used, dtype=bool)
+    r_n, e_n, s_n = pr.shape
+    d = model.dim
+    cc = clock_columns(sys_idx, n_sys)
+    n_states = 3 + (used[:, :, None] & (cc[None] > 0)).any(axis=1).sum(-1)
+    available = used.sum(-1) >= n_states + 1
+    dof = used.sum(-1)
+    threshold = np.where(available, stats.chi2.isf(p_fa, np.maximum(dof, 1)), np.nan)
+    est = np.full((r_n, e_n, d), np.nan)
+    nis = np.full((r_n, e_n), np.nan)
+    norm_innov = np.full((r_n, e_n, s_n), np.nan)
+    worst = np.full((r_n, e_n), -1)
+    excluded = np.zeros((r_n, e_n, s_n), dtype=bool)
+    k0 = -1
+    w0 = 1.0 / sigma_m**2
+    for k in np.flatnonzero(available):
+        fix = wls(np.broadcast_to(sv[k], (r_n, s_n, 3)), pr[:, k],
+                  np.broadcast_to(np.where(used[k], w0, 0.0), (r_n, s_n)), sys_idx, n_sys)
+        if fix.available.all():
+            k0 = int(k)
+            break
+    if k0 < 0:
+        return EkfRun(est, nis, threshold, norm_innov, np.zeros((r_n, e_n), bool), worst,
+                      excluded, np.zeros(e_n, bool))
+    available[:k0] = False
+    x = np.zeros((r_n, d))
+    x[:, :3] = fix.pos_ecef_m
+    x[:, model.clk0:] = np.nan_to_num(fix.clock_m)
+    # Initial P: the fix's covariance (ENU + clocks, rotated to ECEF), inflated.
+    from .geometry import ecef_to_geodetic, enu_rotation
+
+    lat, lon, _ = ecef_to_geodetic(fix.pos_ecef_m)
+    t = np.zeros((r_n, 3 + n_sys, 3 + n_sys))
+    t[:, :3, :3] = np.swapaxes(enu_rotation(lat, lon), -1, -2)
+    t[:, 3:, 3:] = np.eye(n_sys)
+    c = t @ fix.cov_enu @ np.swapaxes(t, -1, -2) * init_inflate**2
+    p = np.zeros((r_n, d, d))
+    idx = np.r_[0:3, model.clk0:d]
+    p[:, idx[:, None], idx[None, :]] = c
+    if model.kind == "cv":
+        p[:, 3:6, 3:6] = np.eye(3) * 100.0  # (10 m/s)^2: velocity unknown at start
+    est[:, k0] = x
+    eye = np.eye(d)
+    for k in range(k0 + 1, e_n):
+        f, q = _transition(model, t_s[k] - t_s[k - 1])
+        x = x @ f.T
+        p = f @ p @ f.T + q
+        if not available[k]:
+            est[:, k] = x
+            continue
+        dvec = sv[k][None] - x[:, None, :3]
+        rng_m = np.linalg.norm(dvec, axis=-1)
+        h = np.zeros((r_n, s_n, d))
+        h[..., :3] = -dvec / rng_m[..., None]
+        h[..., model.clk0:] = cc
+        u = used[k][None, :] & np.ones((r_n, 1), bool)
+        nu = np.where(u, np.nan_to_num(pr[:, k]) - rng_m - x[:, model.clk0:] @ cc.T, 0.0)
+        h = np.where(u[..., None], h, 0.0)
+        s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.eye(s_n) * sigma_m**2
+        s_inv = np.linalg.inv(s_mat)
+        nis[:, k] = np.einsum("rs,rst,rt->r", nu, s_inv, nu)
+        ni = np.abs(nu) / np.sqrt(np.diagonal(s_mat, axis1=1, axis2=2))
+        norm_innov[:, k] = np.where(u, ni, np.nan)
+        worst[:, k] = np.argmax(np.where(u, ni, -1.0), axis=-1)
+        if exclude:
+            drop = (nis[:, k] > threshold[k])[:, None] & (np.arange(s_n) == worst[:, k:k + 1])
+            # An exclusion must leave m >= n for the update.
+            drop &= (u.sum(-1) - 1 >= n_states[k])[:, None]
+            excluded[:, k] = drop
+            u = u & ~drop
+            nu = np.where(u, nu, 0.0)
+            h = np.where(u[..., None], h, 0.0)
+            s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.eye(s_n) * sigma_m**2
+            s_inv = np.linalg.inv(s_mat)
+        gain = p @ np.swapaxes(h, -1, -2) @ s_inv
+        x = x + np.einsum("rds,rs->rd", gain, nu)
+        ikh = eye - gain @ h
+        # Joseph form keeps P symmetric positive definite.
+        p = ikh @ p @ np.swapaxes(ikh, -1, -2) + sigma_m**2 * gain @ np.swapaxes(gain, -1, -2)
+        est[:, k] = x
+    alarm = available[None] & (nis > threshold[None])
+    return EkfRun(est, nis, threshold, norm_innov, alarm, worst, excluded, available)

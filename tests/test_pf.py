@@ -1,0 +1,208 @@
+"""Particle-filter kernels and the PF-LLR algorithm (seed 002, spec section 3)."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from raimcore import pf
+from raimcore.algorithms import pf_llr
+from raimcore.lsq import wls
+from raimcore.noise import Gaussian, StudentT
+from raimcore.scenario import build_epoch_data, load_scenario, run_scenario
+
+ONE_CM = 0.01
+
+
+def test_systematic_resample_keeps_expected_counts():
+    """Particle i is copied floor(N w_i) or ceil(N w_i) times, ceil with probability
+    frac(N w_i): checked per particle with a binomial test over many draws."""
+    rng = np.random.default_rng(5)
+    n, draws = 40, 4000
+    w = rng.dirichlet(np.full(n, 0.7))
+    idx = pf.systematic_resample(np.broadcast_to(w, (draws, n)), np.random.default_rng(6))
+    assert idx.shape == (draws, n) and idx.min() >= 0 and idx.max() < n
+    counts = np.stack([np.bincount(row, minlength=n) for row in idx])
+    nw = n * w
+    assert np.all((counts == np.floor(nw)) | (counts == np.ceil(nw)))
+    frac = nw - np.floor(nw)
+    for i in np.flatnonzero((frac > 0.05) & (frac < 0.95)):
+        k = int(np.sum(counts[:, i] == np.ceil(nw[i])))
+        assert stats.binomtest(k, draws, frac[i]).pvalue > 1e-4
+    # Mean count equals N w_i (unbiased resampling) within a few standard errors.
+    se = np.sqrt(frac * (1 - frac) / draws)
+    assert np.all(np.abs(counts.mean(0) - nw) <= 5 * se + 1e-12)
+
+
+def test_systematic_resample_degenerate_and_unbatched():
+    w = np.zeros(10)
+    w[3] = 1.0
+    assert np.all(pf.systematic_resample(w, np.random.default_rng(0)) == 3)
+    idx = pf.systematic_resample(np.full(7, 1 / 7), np.random.default_rng(1))
+    np.testing.assert_array_equal(idx, np.arange(7))
+
+
+def test_log_weights_are_normalised_and_neff_bounds():
+    rng = np.random.default_rng(2)
+    log_w = rng.normal(0, 30, (5, 3, 200)) - 1e4  # far from exp's range
+    w, log_norm = pf.normalise_log_weights(log_w)
+    np.testing.assert_allclose(w.sum(-1), 1.0, rtol=1e-12)
+    assert np.all(np.isfinite(log_norm))
+    n_eff = pf.effective_sample_size(w)
+    assert np.all((n_eff >= 1 - 1e-9) & (n_eff <= 200 + 1e-9))
+    assert pf.effective_sample_size(np.full(50, 0.02)) == pytest.approx(50)
+
+
+def test_bank_step_weights_normalised_and_resampling_rule():
+    d = build_epoch_data(load_scenario("seed002", noise="gaussian", faults=[]))
+    model = pf.ProcessModel("static", 1)
+    fix = pf.robust_fix(d.pos_sv_ecef_m[0], d.pr_m[:1], d.used[0], d.sys_idx, 1, d.noise)
+    cloud = pf.initial_cloud(fix.pos_ecef_m, fix.clock_m, fix.cov_enu, 300, model,
+                             np.random.default_rng(0), batch=(4,), inflate=3.0)
+    assert cloud.shape == (1, 4, 300, 4)
+    bank = pf.ParticleBank(cloud, model)
+    res = bank.step(1.0, d.pos_sv_ecef_m[1][None, None], d.pr_m[1][None, None],
+                    np.broadcast_to(d.used[1], (1, 4, 6)), d.sys_idx, d.noise,
+                    np.random.default_rng(1))
+    np.testing.assert_allclose(np.exp(bank.log_w).sum(-1), 1.0, rtol=1e-9)
+    np.testing.assert_array_equal(res.resampled, res.n_eff < 200)
+    resampled_rows = np.exp(bank.log_w)[res.resampled]
+    np.testing.assert_allclose(resampled_rows, 1 / 300)
+
+
+def test_pf_update_agrees_with_least_squares_under_gaussian_noise():
+    """One update of a Gaussian prior N(x_ls + d, c C_ls) by Gaussian pseudoranges has the
+    posterior mean x_ls + d / (1 + c) (linear-Gaussian Bayes: the LSQ fix is the
+    likelihood's mean, C_ls its covariance); many particles reproduce it."""
+    d = build_epoch_data(load_scenario("seed002", noise="gaussian", faults=[], seed=4))
+    noise = Gaussian(3.0)
+    sv, pr, used = d.pos_sv_ecef_m[0], d.pr_m[0], d.used[0]
+    ls = wls(sv[None], pr[None], np.where(used, 1 / 9.0, 0.0)[None], d.sys_idx, 1)
+    model = pf.ProcessModel("static", 1, q_pos_mps=0.0, q_clk_mps=0.0)
+    c, n = 4.0, 200_000
+    offset = np.array([6.0, -4.0, 9.0])
+    cloud = pf.initial_cloud(ls.pos_ecef_m + offset, ls.clock_m, ls.cov_enu * c, n, model,
+                             np.random.default_rng(3))
+    bank = pf.ParticleBank(cloud, model, n_threshold=0)
+    res = bank.step(0.0, sv[None], pr[None], used[None], d.sys_idx, noise,
+                    np.random.default_rng(4))
+    want = ls.pos_ecef_m[0] + offset / (1 + c)
+    post_sd = np.sqrt(np.diag(ls.cov_enu[0])[:3].max() * c / (1 + c))
+    tol = 6 * post_sd / np.sqrt(res.n_eff[0]) + ONE_CM
+    assert np.linalg.norm(res.estimate[0, :3] - want) < tol
+
+
+def test_pf_filter_tracks_a_static_receiver_like_batch_least_squares():
+    """Gaussian noise, many particles: after 60 s the main filter sits within a metre of
+    the least-squares fix of all epochs so far (both average the same data)."""
+    d = build_epoch_data(load_scenario("seed002", noise="gaussian", faults=[], seed=7,
+                                       duration_s=60))
+    model = pf.ProcessModel("static", 1, q_pos_mps=0.01, q_clk_mps=0.01)
+    run = pf.run_llr_bank(d.pos_sv_ecef_m, d.pr_m[None], d.used, d.t_s, d.sys_idx, 1,
+                          d.noise, model, n_particles=3000, window=10, burn_in=10,
+                          rng=np.random.default_rng(1))
+    # Batch LSQ of a static receiver: one position and one clock from all 61 x 6 ranges.
+    sv = d.pos_sv_ecef_m.reshape(1, -1, 3)
+    batch = wls(sv, d.pr_m.reshape(1, -1), np.full((1, sv.shape[1]), 1 / 9.0),
+                np.zeros(sv.shape[1], int), 1)
+    err_pf = np.linalg.norm(run.estimate[0, -1, 0, :3] - batch.pos_ecef_m[0])
+    err_snap = np.linalg.norm(run.estimate[0, 0, 0, :3] - batch.pos_ecef_m[0])
+    assert err_pf < 1.0 < err_snap + 1.0
+
+
+def test_bank_vectorised_over_runs_gives_one_llr_per_satellite():
+    d = build_epoch_data(load_scenario("seed002", duration_s=80))
+    run = pf.run_llr_bank(d.pos_sv_ecef_m, np.stack([d.pr_m, d.pr_m]), d.used, d.t_s,
+                          d.sys_idx, 1, d.noise, pf.ProcessModel(), n_particles=50,
+                          window=10, burn_in=5, rng=np.random.default_rng(0))
+    assert run.llr.shape == (2, 81, 6) and run.estimate.shape == (2, 81, 7, 4)
+    armed = np.flatnonzero(run.armed)
+    assert armed[0] == 1 + 5 + 10 - 1
+    np.testing.assert_allclose(run.beta[:, armed], np.nanmax(run.cum_llr[:, armed], -1))
+    # The window sum is the sum of the last W per-epoch LLRs.
+    k = armed[-1]
+    np.testing.assert_allclose(run.cum_llr[:, k], run.llr[:, k - 9:k + 1].sum(1))
+
+
+def test_process_models_and_bad_options():
+    rng = np.random.default_rng(0)
+    cv = pf.ProcessModel("cv", 2, q_pos_mps=0.0, q_vel_mps2=0.0, q_clk_mps=0.0)
+    x = np.zeros((3, cv.dim))
+    x[:, 3:6] = [1.0, 2.0, 3.0]
+    np.testing.assert_allclose(pf.predict(x, 2.0, cv, rng)[:, :3], [[2.0, 4.0, 6.0]] * 3)
+    with pytest.raises(ValueError, match="model must be one of"):
+        pf.ProcessModel("brownian")
+    with pytest.raises(ValueError, match="n_particles"):
+        run_scenario(load_scenario("seed002", algorithm="pf-llr", n_particles=1))
+    with pytest.raises(ValueError, match="tau must be"):
+        run_scenario(load_scenario("seed002", algorithm="pf-llr", tau="high"))
+    with pytest.raises(ValueError, match="tau_cache must be one of"):
+        run_scenario(load_scenario("seed002", algorithm="pf-llr", tau_cache="cloud"))
+
+
+def test_moving_receiver_with_constant_velocity_model():
+    s = load_scenario("seed000-step", algorithm="pf-llr", model="cv", noise="student-t",
+                      sigma_m=3.0, faults=[], duration_s=90, tau=1e6)
+    r = run_scenario(s)
+    late = r.table["t_s"] > 60
+    assert np.nanmax(r.table["hpe_before_m"][late]) < 15.0
+    assert not r.table["alarm"].any()
+
+
+def test_user_tau_is_used_and_calibration_is_cached(monkeypatch, tmp_path):
+    calls = []
+    real = pf.calibrate_tau
+
+    def counting(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(pf_llr, "calibrate_tau", counting)
+    monkeypatch.setattr(pf, "_TAU_CACHE", {})
+    s = load_scenario("seed002", algorithm="pf-llr", duration_s=100, n_particles=20)
+    t1 = run_scenario(s).table
+    t2 = run_scenario(s.replace(seed=9, faults=[])).table  # same geometry: cache hit
+    assert len(calls) == 1
+    assert np.nanmax(t1["threshold"]) == np.nanmax(t2["threshold"])
+    t3 = run_scenario(s.replace(tau=123.5)).table
+    assert len(calls) == 1 and np.nanmax(t3["threshold"]) == 123.5
+    # Disk cache only when asked, under $XDG_CACHE_HOME.
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setattr(pf, "_TAU_CACHE", {})
+    run_scenario(s.replace(tau_cache="disk"))
+    assert (tmp_path / "raimcore" / "pf_llr_tau.json").is_file()
+    monkeypatch.setattr(pf, "_TAU_CACHE", {})
+    run_scenario(s.replace(tau_cache="disk"))
+    assert len(calls) == 2  # the second process-fresh run read the file
+
+
+def test_noise_models_give_the_likelihood():
+    """The filter's likelihood is the noise model's logpdf summed over scored satellites."""
+    noise = StudentT(3.0, 3.0)
+    model = pf.ProcessModel("static", 1)
+    x = np.array([[[0.0, 0.0, 0.0, 5.0]]])
+    sv = np.array([[2e7, 0, 0], [0, 2e7, 0], [0, 0, 2e7]])
+    pr = np.array([2e7 + 5.0 + 1.0, 2e7 + 5.0 - 2.0, np.nan])
+    ll = pf.log_likelihood(x, sv, pr, np.array([True, True, False]), np.zeros(3, int), noise,
+                           model)
+    assert ll[0, 0] == pytest.approx(noise.logpdf(1.0) + noise.logpdf(-2.0))
+    assert math.isfinite(ll[0, 0])
+
+
+@pytest.mark.slow
+def test_fault_free_alarm_rate_matches_calibrated_tau():
+    """Calibrate tau for p_fa_window = 5 %, then count alarms in independent fault-free
+    runs at non-overlapping windows (every W-th armed epoch): binomial test."""
+    d = build_epoch_data(load_scenario("seed002", faults=[]))
+    u = d.used[0]
+    sv, rx = d.pos_sv_ecef_m[0][u], d.pos_rx_true_ecef_m[0]
+    model = pf.ProcessModel()
+    cfg = dict(n_particles=100, window=30, burn_in=30, p_fa_window=0.05)
+    cal = pf.calibrate_tau(sv, rx, d.sys_idx[u], 1, d.noise, model, n_runs=64, n_armed=60,
+                           rng=np.random.default_rng(100), **cfg)
+    test = pf.calibrate_tau(sv, rx, d.sys_idx[u], 1, d.noise, model, n_runs=160,
+                            n_armed=60, rng=np.random.default_rng(200), **cfg)
+    windows = test.beta[:, ::30]  # 2 non-overlapping windows per run
+    k, n = int(np.sum(windows > cal.tau)), windows.size
+    assert stats.binomtest(k, n, 0.05).pvalue > 1e-3, (k, n)
