@@ -45,7 +45,8 @@ from .constellations import builtin
 from .geometry import geodetic_to_ecef, los_enu
 
 __all__ = ["Study", "StudyResult", "run_study", "p_bias_m", "p_bias_group_m", "random_geometry",
-           "simulate_runs", "KERNELS", "register_kernel", "parse_algorithm", "CHUNK_RUNS"]
+           "simulate_runs", "KERNELS", "register_kernel", "parse_algorithm", "CHUNK_RUNS",
+           "markdown_table", "write_csv", "run_chunk", "BIAS_UNITS"]
 
 #: Fault units: the spec's full-set P_bias, or the group-level hypothesis.
 BIAS_UNITS = ("full", "group")
