@@ -127,3 +127,5 @@ register_panel(PanelSpec("errors", figures.error_figure,
                          claims=("hpe_before_m", "hpe_after_m", "vpe_before_m",
                                  "vpe_after_m", "hpl_m", "vpl_m"),
                          claim_pattern=figures.PROTECTION_LEVEL))
+
+from . import multifault  # noqa: E402,F401  (seed 004 multi-fault panel registers itself)

@@ -89,9 +89,10 @@ def orbit_rings(pos_sv_ecef_m: np.ndarray, t_s: np.ndarray, n_points: int = 128)
     omega = np.array([0.0, 0.0, OMEGA_E_RADPS])
     v_eci = v_ecef + np.cross(omega, r0)  # inertial velocity at t0 (frames aligned at t0)
     radius = np.linalg.norm(r0, axis=-1, keepdims=True)
-    e1 = r0 / radius
-    normal = np.cross(r0, v_eci)
-    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):  # parked satellites: NaN rings
+        e1 = r0 / radius
+        normal = np.cross(r0, v_eci)
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
     e2 = np.cross(normal, e1)
     ang = np.linspace(0.0, 2.0 * np.pi, n_points + 1)
     ring = radius[:, None, :] * (np.cos(ang)[None, :, None] * e1[:, None, :]
@@ -276,8 +277,13 @@ class SkyScene:
             orbits.wxyz = earth_rotation_wxyz(float(run.t_s[i] - run.t_s[0]))
         sv = run.pos_sv_ecef_m[i] * SCALE_PER_M
         state = run.state[i]
+        # A satellite without a position (a recording's satellite with no usable
+        # ephemeris is parked at the Earth's centre) is hidden, not drawn inside the Earth.
+        shown = np.linalg.norm(sv, axis=-1) > 7.0
         for k, frame in enumerate(self._sat_frames):
             frame.position = sv[k]
+            if frame.visible != bool(shown[k]):
+                frame.visible = bool(shown[k])
         if self._sat_state is None or force or np.any(state != self._sat_state):
             for k in range(len(self._sat_balls)):
                 if self._sat_state is None or state[k] != self._sat_state[k] or force:
@@ -287,7 +293,7 @@ class SkyScene:
                                                 if st in ("faulty", "excluded")
                                                 else run.sat_names[k])
             self._sat_state = state.copy()
-        vis = state != STATE_ORDER.index("below mask")
+        vis = (state != STATE_ORDER.index("below mask")) & shown
         if vis.any():
             pts = np.stack([np.broadcast_to(rx_scene, sv[vis].shape), sv[vis]], axis=1)
             col = np.repeat(_rgb_array(state[vis])[:, None, :], 2, axis=1)

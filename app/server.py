@@ -32,17 +32,20 @@ class Dashboard:
     Parameters
     ----------
     host, port : where to listen (port 0 picks a free one).
-    scenario : built-in scenario name or TOML path each new session starts from.
+    scenario : built-in scenario name, TOML path or :class:`Scenario` (e.g. a recording's)
+        each new session starts from.
     """
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
-                 scenario: str = DEFAULT_SCENARIO, verbose: bool = True) -> None:
+                 scenario: str | Scenario = DEFAULT_SCENARIO, verbose: bool = True) -> None:
         import viser
 
-        self.start_scenario: Scenario = load_scenario(scenario)
-        self.presets = preset_table()
+        self.start_scenario: Scenario = (scenario if isinstance(scenario, Scenario)
+                                         else load_scenario(scenario))
+        self.presets: dict[str, str | Scenario] = preset_table()
         if self.start_scenario.name not in self.presets:
-            self.presets[self.start_scenario.name] = str(scenario)
+            self.presets[self.start_scenario.name] = (
+                scenario if isinstance(scenario, Scenario) else str(scenario))
         self.sessions: dict[int, Session] = {}
         self._lock = threading.Lock()
         self._connected = threading.Condition(self._lock)
@@ -63,7 +66,12 @@ class Dashboard:
         from raimcore.geometry import geodetic_to_ecef
 
         s = self.start_scenario
-        rx = geodetic_to_ecef(np.radians(s.lat_deg), np.radians(s.lon_deg), 0.0)
+        if s.source == "rinex":
+            from raimcore.recording import receiver_ecef_m
+
+            rx = receiver_ecef_m(s)
+        else:
+            rx = geodetic_to_ecef(np.radians(s.lat_deg), np.radians(s.lon_deg), 0.0)
         up = np.array([0.0, 0.0, 1.0])
         # Largest orbit radius (Mm): BeiDou GEO/IGSO 42.2, GPS and BeiDou MEO below 28.
         r_orbit = 42.2 if "BDS" in s.systems else 26.6
@@ -113,7 +121,7 @@ def _refuse_share(*_args, **_kwargs) -> None:
 
 
 def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
-          scenario: str = DEFAULT_SCENARIO) -> None:
+          scenario: str | Scenario = DEFAULT_SCENARIO) -> None:
     """Run the dashboard until interrupted (Ctrl-C)."""
     dash = Dashboard(host, port, scenario)
     print(f"RAIM Studio dashboard: open {dash.url} in a browser (Ctrl-C to stop)")

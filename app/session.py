@@ -13,10 +13,13 @@ from __future__ import annotations
 import html
 import io
 import math
+import shutil
+import tempfile
 import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -110,6 +113,7 @@ class Session:
         self._play_thread: threading.Thread | None = None
         self._option_handles: dict[str, object] = {}
         self._cache: OrderedDict[str, ScenarioResult] = OrderedDict()
+        self._upload_dir: str | None = None
         self.scene = SkyScene(client.scene)
         self._build_gui()
         self.request_recompute()
@@ -148,6 +152,14 @@ class Session:
             self.time = gui.add_slider("t (s)", 0.0, max(t_end, s.step_s), s.step_s, 0.0)
             self.play = gui.add_checkbox("Play", False)
             self.speed = gui.add_dropdown("Speed", PLAY_SPEEDS, initial_value="5x")
+        with gui.add_folder("Recording (RINEX)", expand_by_default=s.source == "rinex"):
+            self.rec_obs = gui.add_text("Observation file", s.obs,
+                                        hint="path on the server, or upload below")
+            self.rec_nav = gui.add_text("Navigation file", s.nav)
+            self.rec_open = gui.add_button("Open recording")
+            self.rec_upload_obs = gui.add_upload_button("Upload observation file")
+            self.rec_upload_nav = gui.add_upload_button("Upload navigation file")
+            self.rec_notes = gui.add_markdown("")
         with gui.add_folder("Export", expand_by_default=False):
             self.export_csv = gui.add_button("Download table (CSV)")
             self.export_html = gui.add_button("Download figures (HTML)")
@@ -176,6 +188,11 @@ class Session:
         self.time.on_update(lambda _e: self._on_time())
         self.per_sat_pick.on_update(lambda _e: self._on_per_sat_pick())
         self.play.on_update(lambda _e: self._on_play())
+        self.rec_open.on_click(lambda _e: self._on_open_recording())
+        self.rec_upload_obs.on_upload(lambda _e: self._on_upload(self.rec_upload_obs,
+                                                                 self.rec_obs))
+        self.rec_upload_nav.on_upload(lambda _e: self._on_upload(self.rec_upload_nav,
+                                                                 self.rec_nav))
         self.export_csv.on_click(lambda _e: self.download_csv())
         self.export_html.on_click(lambda _e: self.download_html())
         self._build_option_controls()
@@ -246,8 +263,12 @@ class Session:
     def _on_preset(self) -> None:
         if self._syncing:
             return
-        name = self.preset.value
-        self.scenario = load_scenario(self.presets.get(name, name))
+        target = self.presets.get(self.preset.value, self.preset.value)
+        self.open_scenario(target if isinstance(target, Scenario) else load_scenario(target))
+
+    def open_scenario(self, scenario: Scenario) -> None:
+        """Switch this session to ``scenario``: controls, fault editor and time follow."""
+        self.scenario = scenario
         self._syncing = True
         try:
             s = self.scenario
@@ -267,6 +288,45 @@ class Session:
             self._syncing = False
         self._sync_fault_controls()
         self.request_recompute()
+
+    # -- recordings ---------------------------------------------------------------------
+    def open_recording(self, obs: str, nav: str) -> None:
+        """Open a RINEX recording (paths on the server) and offer it as a preset."""
+        from raimcore.recording import recording_scenario
+
+        scenario = recording_scenario(obs, nav, algorithm=self.algorithm.value)
+        self.presets[scenario.name] = scenario
+        self._syncing = True
+        try:
+            self.preset.options = list(self.presets)
+            self.preset.value = scenario.name
+            self.rec_obs.value, self.rec_nav.value = str(obs), str(nav)
+        finally:
+            self._syncing = False
+        self.open_scenario(scenario)
+
+    def _on_open_recording(self) -> None:
+        try:
+            self.open_recording(self.rec_obs.value.strip(), self.rec_nav.value.strip())
+        except ValueError as exc:
+            self._show_error(exc)
+
+    def _on_upload(self, button, field) -> None:
+        """Save an uploaded file in this session's temporary folder; open the recording
+        once both files are there."""
+        up = button.value
+        if self._upload_dir is None:
+            self._upload_dir = tempfile.mkdtemp(prefix="raim-upload-")
+        path = Path(self._upload_dir) / (Path(up.name).name or "upload.rnx")
+        path.write_bytes(up.content)
+        self._syncing = True
+        try:
+            field.value = str(path)
+        finally:
+            self._syncing = False
+        if all(Path(f.value).is_file() for f in (self.rec_obs, self.rec_nav)
+               if f.value.strip()) and self.rec_obs.value.strip() and self.rec_nav.value.strip():
+            self._on_open_recording()
 
     # -- faults -------------------------------------------------------------------------
     def _visible_sats(self) -> list[str]:
@@ -411,6 +471,7 @@ class Session:
         self.status.content = (f"**{scenario.name}** · {len(result.data.t_s)} epochs · "
                                f"{len(result.data.sat_names)} satellites · update "
                                f"{1e3 * tm.total_s:.0f} ms")
+        self.rec_notes.content = "".join(f"- {html.escape(n)}\n" for n in result.data.notes)
         self._refresh_fault_sats()
         self._refresh_per_sat_pick()
 
@@ -550,6 +611,8 @@ class Session:
     def close(self) -> None:
         self._play_stop.set()
         self.scheduler.close()
+        if self._upload_dir is not None:
+            shutil.rmtree(self._upload_dir, ignore_errors=True)
 
 
 def preset_table() -> dict[str, str]:

@@ -17,6 +17,10 @@ measurements    simulated pseudoranges
 lsq             batched iterative weighted least squares
 parity          parity-vector detection, isolation and reconstruction (seed 000)
 mss             solution separation with baro aiding, MSS and classic protection levels (seed 001)
+rinex           RINEX 2.11 / 3.0x observation and GPS + BeiDou navigation readers
+ephemeris       broadcast-ephemeris satellite position and clock (GPS, BeiDou incl. GEO)
+spp             corrected real pseudoranges and batched single-point positioning
+recording       a RINEX recording as a scenario source
 scenario        scenario descriptions and the per-epoch engine
 algorithms      the registry of RAIM algorithms
 

@@ -41,6 +41,7 @@ examples:
   raim run seed000-ramp --out ramp.csv
   raim run default --fault G10,step,80,100,200 --fault G05,ramp,1.5,300
   raim run my_scenario.toml --algorithm parity --seed 7 --out result.json
+  raim run --obs STATION.rnx --nav BRDC.rnx --fault G05,ramp,2,600   (a real recording)
 
 --set takes any scenario key (see README, "Scenario keys") or algorithm option; values are
 TOML literals: --set sigma_m=3 --set systems='["GPS","BDS"]' --set baro=true.
@@ -55,7 +56,10 @@ def _add_run(sub):
                        description="Run one scenario through an algorithm, write the "
                        "per-epoch table and print a short summary.",
                        epilog=RUN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scenario", help="built-in scenario name (see 'raim list') or a .toml file")
+    p.add_argument("scenario", nargs="?",
+                   help="built-in scenario name (see 'raim list') or a .toml file; optional "
+                        "with --obs")
+    _add_recording_args(p)
     p.add_argument("--algorithm", "-a", help="algorithm to use (see 'raim list')")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key or algorithm option (repeatable)")
@@ -65,6 +69,29 @@ def _add_run(sub):
     p.add_argument("--out", type=Path, help="write the table to PATH.csv or PATH.json")
     p.add_argument("--quiet", "-q", action="store_true", help="print only the summary JSON")
     p.set_defaults(func=_cmd_run)
+
+
+def _add_recording_args(p):
+    p.add_argument("--obs", help="RINEX 2.11/3.0x observation file: run on this recording")
+    p.add_argument("--nav", help="RINEX navigation file (GPS and/or BeiDou) for --obs")
+
+
+def _recording_scenario(args, over: dict):
+    """The scenario of ``--obs/--nav`` (with a scenario file's keys when one is given),
+    or None without ``--obs``."""
+    if not args.obs and not args.nav:
+        if not args.scenario:
+            raise ValueError("give a scenario (see 'raim list') or --obs FILE --nav FILE")
+        return None
+    if not (args.obs and args.nav):
+        raise ValueError("--obs and --nav go together (observation and navigation file)")
+    from .recording import recording_scenario
+    from .scenario import load_scenario
+
+    rec = {"source": "rinex", "obs": args.obs, "nav": args.nav}
+    if args.scenario:
+        return load_scenario(args.scenario, **rec, **over)
+    return recording_scenario(args.obs, args.nav, **over)
 
 
 def _overrides(args) -> dict:
@@ -91,7 +118,8 @@ def _cmd_run(args) -> int:
 
     if args.out is not None and args.out.suffix.lower() not in (".csv", ".json"):
         raise ValueError(f"--out must end in .csv or .json, got {str(args.out)!r}")
-    scenario = load_scenario(args.scenario, **_overrides(args))
+    over = _overrides(args)
+    scenario = _recording_scenario(args, over) or load_scenario(args.scenario, **over)
     result = run_scenario(scenario)
     if args.out is not None:
         if args.out.suffix.lower() == ".csv":
@@ -101,6 +129,8 @@ def _cmd_run(args) -> int:
     if args.quiet:
         print(json.dumps(result.summary))
     else:
+        for note in result.data.notes:
+            print(f"note: {note}")
         print(format_summary(result))
         if args.out is not None:
             print(f"table written to {args.out}")
@@ -163,6 +193,7 @@ def _add_dashboard(sub):
     p.add_argument("--scenario", default="default",
                    help="built-in scenario name or .toml file to start from "
                         "(default %(default)s)")
+    _add_recording_args(p)
     p.set_defaults(func=_cmd_dashboard)
 
 
@@ -174,8 +205,68 @@ def _cmd_dashboard(args) -> int:
                          f"'raim-studio[app]' ({exc})") from None
     from .scenario import load_scenario
 
+    if args.obs or args.nav:  # a recording: read it now, so file errors come before serving
+        args.scenario = None if args.scenario == "default" else args.scenario
+        serve(args.host, args.port, _recording_scenario(args, {}))
+        return 0
     load_scenario(args.scenario)  # fail early, with the scenario error, before serving
     serve(args.host, args.port, args.scenario)
+    return 0
+
+
+MONTECARLO_EPILOG = """\
+examples:
+  raim montecarlo seed004-table2 --runs 1000 --workers 2 --out mc/
+  raim montecarlo seed004-table1 --bias-scale 1 --out mc/
+  raim montecarlo seed004-table2 --dask local --workers 2
+  raim montecarlo seed004-table2 --dask tcp://scheduler:8786
+
+Each table is run at every --bias-scale (default: 1 = the paper's setting as written, and 2,
+see README "Group evidence fusion"). With --out, finished cells are recorded in
+DIR/ledger.jsonl: running the same command again resumes an interrupted study.
+"""
+
+
+def _add_montecarlo(sub):
+    p = sub.add_parser("montecarlo", help="run a Monte Carlo study (seed 004 tables)",
+                       description="Run a reference Monte Carlo study and print our table "
+                       "beside the paper's.", epilog=MONTECARLO_EPILOG,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("study", choices=["seed004-table1", "seed004-table2"])
+    p.add_argument("--runs", type=int, default=5000,
+                   help="Monte Carlo runs a cell (default %(default)s)")
+    p.add_argument("--workers", type=int, default=1,
+                   help="processes (default %(default)s: in this process)")
+    p.add_argument("--dask", metavar="ADDRESS",
+                   help="run on a Dask cluster at ADDRESS, or 'local' for a LocalCluster "
+                        "of --workers processes (needs raim-studio[dask])")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="write CSV, Markdown and a resume ledger to DIR")
+    p.add_argument("--seed", type=int, default=4, help="root seed (default %(default)s)")
+    p.add_argument("--bias-scale", type=float, action="append", dest="scales",
+                   metavar="X", help="fault bias scale factor (repeatable; default 1 and 2)")
+    p.add_argument("--bias-unit", choices=["full", "group"], default="full",
+                   help="fault unit: P_bias of the full set (spec, default) or of one "
+                        "group (our hypothesis for the paper's unit, see README)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar on stderr (default: when stderr is a terminal)")
+    p.set_defaults(func=_cmd_montecarlo)
+
+
+def _cmd_montecarlo(args) -> int:
+    from .seed004 import run_table
+
+    if args.runs < 1:
+        raise ValueError(f"--runs must be >= 1, got {args.runs}")
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    _, text = run_table(args.study, runs=args.runs, seed=args.seed,
+                        scales=tuple(args.scales or (1.0, 2.0)), bias_unit=args.bias_unit,
+                        workers=args.workers,
+                        dask=args.dask, out_dir=args.out, progress=args.progress)
+    print(text)
+    if args.out is not None:
+        print(f"results written to {args.out}/")
     return 0
 
 
@@ -191,6 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in (_add_list, _add_run, _add_dashboard):
         add(sub)
+    _add_montecarlo(sub)
     return parser
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from . import algorithms
 from ._validate import check_choice, check_int, check_positive, check_probability, check_range
-from .algorithms.base import AlgorithmOutput, EpochData
+from .algorithms.base import STATUS_UNAVAILABLE, AlgorithmOutput, EpochData
 from .constellations import builtin, read_yuma
 from .faults import Fault, fault_biases
 from .geometry import ecef_to_enu
@@ -36,7 +36,7 @@ from .trajectories import TRAJECTORY_KINDS, flight_profile, static, straight_lin
 
 __all__ = ["Scenario", "ScenarioResult", "Restrict", "load_scenario", "list_scenarios",
            "build_epoch_data", "run_scenario", "run_algorithm", "make_table", "parse_value",
-           "summarize"]
+           "summarize", "unavailable_output"]
 
 
 @dataclass(frozen=True)
@@ -64,6 +64,11 @@ class Scenario:
     ``sigma_baro_m``.
     Integrity: ``algorithm``, ``p_fa``, ``p_md``, ``hal_m``, ``val_m``, ``seed``;
     algorithm-specific keys land in ``options``.
+    Real recordings (``source = "rinex"``, see :mod:`raimcore.recording`): ``obs``,
+    ``nav`` (RINEX paths), ``signals`` (code types, e.g. ``["C1C", "C2I"]``; empty = the
+    defaults), ``truth_ecef_m`` (truth for the error columns; empty = the header position);
+    ``t_start_s`` / ``duration_s`` / ``step_s`` then cut and thin the recording (t = 0 at
+    its first epoch + ``t_start_s``).
     """
 
     name: str = "custom"
@@ -106,6 +111,11 @@ class Scenario:
     val_m: float = 1000.0
     seed: int = 0
     options: tuple[tuple[str, Any], ...] = ()
+    source: str = "sim"
+    obs: str = ""
+    nav: str = ""
+    signals: tuple[str, ...] = ()
+    truth_ecef_m: tuple[float, ...] = ()
 
     def __post_init__(self):
         _validate(self)
@@ -148,6 +158,8 @@ class Scenario:
 
 
 _FIELD_NAMES = {f.name for f in fields(Scenario)}
+#: Where the pseudoranges come from: simulated, or a RINEX recording (raimcore.recording).
+SOURCES = ("sim", "rinex")
 
 
 def _option_keys() -> dict[str, Any]:
@@ -189,7 +201,9 @@ def from_dict(d: dict[str, Any]) -> Scenario:
         if f.name in kw and isinstance(f.default, float) and isinstance(kw[f.name], int) \
                 and not isinstance(kw[f.name], bool):
             kw[f.name] = float(kw[f.name])
-    for key in ("systems", "sats"):
+    if "truth_ecef_m" in kw:
+        kw["truth_ecef_m"] = tuple(float(x) for x in kw["truth_ecef_m"])
+    for key in ("systems", "sats", "signals"):
         if key in kw:
             v = kw[key]
             kw[key] = (v,) if isinstance(v, str) else tuple(v)
@@ -229,6 +243,13 @@ def _validate(s: Scenario) -> None:
     check_int("seed", s.seed, 0)
     if not isinstance(s.baro, bool):
         raise ValueError(f"baro must be true or false, got {s.baro!r}")
+    check_choice("source", s.source, SOURCES)
+    if s.source == "rinex" and not (s.obs and s.nav):
+        raise ValueError("source 'rinex' needs obs and nav (RINEX observation and navigation "
+                         "file paths)")
+    if len(s.truth_ecef_m) not in (0, 3):
+        raise ValueError(f"truth_ecef_m must be [] or [x, y, z] in metres, got "
+                         f"{list(s.truth_ecef_m)}")
     if s.algorithm not in algorithms.names():
         raise ValueError(f"algorithm must be one of {', '.join(algorithms.names())}; "
                          f"got {s.algorithm!r}")
@@ -299,8 +320,13 @@ def build_epoch_data(s: Scenario) -> EpochData:
     """Simulate every epoch of a scenario: geometry, visibility, pseudoranges, faults.
 
     Random streams (noise, receiver clock, baro) are spawned from ``s.seed`` with
-    ``SeedSequence``, so each is reproducible on its own.
+    ``SeedSequence``, so each is reproducible on its own. ``source = "rinex"`` reads a
+    recording instead (:func:`raimcore.recording.recording_epoch_data`).
     """
+    if s.source == "rinex":
+        from .recording import recording_epoch_data
+
+        return recording_epoch_data(s)
     const = (builtin(s.systems) if s.constellation == "nominal"
              else read_yuma(s.constellation))
     const = const if set(const.systems) <= set(s.systems) else const.subset(
@@ -328,13 +354,7 @@ def build_epoch_data(s: Scenario) -> EpochData:
     el = np.arcsin(np.clip(-h_enu[..., 2], -1.0, 1.0))
     az = np.mod(np.arctan2(-h_enu[..., 0], -h_enu[..., 1]), 2 * np.pi)
     used = (el >= math.radians(s.mask_deg)) & np.asarray(const.healthy)[None, :]
-    for r in s.restrict:
-        unknown = [x for x in r.sats if x not in const.names]
-        if unknown:
-            raise ValueError(f"restrict: unknown satellite(s) {', '.join(unknown)}")
-        window = (t >= r.t0_s) & (t < r.t1_s)
-        keep = np.isin(np.array(const.names), list(r.sats))
-        used[window] &= keep[None, :]
+    apply_restrict(used, t, const.names, s.restrict)
     bias = fault_biases(s.faults, t, const.names)
     noise = make_noise(s.noise, s.sigma_m, mixture_eps=s.mixture_eps,
                        mixture_scale=s.mixture_scale, student_nu=s.student_nu)
@@ -357,6 +377,17 @@ def build_epoch_data(s: Scenario) -> EpochData:
         fault_bias_m=bias, p_fa=s.p_fa, p_md=s.p_md, seed=int(s.seed),
         baro_alt_m=baro_alt, sigma_baro_m=s.sigma_baro_m if s.baro else None,
         hal_m=s.hal_m, val_m=s.val_m)
+
+
+def apply_restrict(used, t, sat_names, restrict) -> None:
+    """Clear ``used`` (E, S) in place outside each restriction's satellites and window."""
+    for r in restrict:
+        unknown = [x for x in r.sats if x not in sat_names]
+        if unknown:
+            raise ValueError(f"restrict: unknown satellite(s) {', '.join(unknown)}")
+        window = (t >= r.t0_s) & (t < r.t1_s)
+        keep = np.isin(np.array(sat_names), list(r.sats))
+        used[window] &= keep[None, :]
 
 
 @dataclass(frozen=True)
@@ -391,10 +422,23 @@ def run_algorithm(spec, data: EpochData, options: dict[str, Any]) -> AlgorithmOu
     makes every per-satellite array (and the S x S projectors) several times smaller.
     """
     cols = np.flatnonzero(data.used.any(axis=0))
+    if cols.size == 0:  # no satellite ever used: nothing to run, every epoch unavailable
+        return unavailable_output(data)
     small = data.take_sats(cols)
     out = spec.run(small, options)
     check_output(spec.name, small, out)
     return out.expand_sats(cols, data.n_sats)
+
+
+def unavailable_output(data: EpochData) -> AlgorithmOutput:
+    """An output with every epoch "unavailable" (NaN statistics and positions)."""
+    e, s = data.n_epochs, data.n_sats
+    nan = np.full(e, np.nan)
+    return AlgorithmOutput(
+        status=np.full(e, STATUS_UNAVAILABLE, dtype=object), statistic=nan, threshold=nan,
+        alarm=np.zeros(e, dtype=bool), pos_before_ecef_m=np.full((e, 3), np.nan),
+        pos_after_ecef_m=np.full((e, 3), np.nan), excluded=np.zeros((e, s), dtype=bool),
+        isolated=np.full(e, -1, dtype=int))
 
 
 def check_output(name: str, data: EpochData, out: AlgorithmOutput) -> None:

@@ -16,6 +16,9 @@ __all__ = ["AlgorithmOutput", "AlgorithmSpec", "EpochData", "get", "names", "reg
 _MODULES = [
     "parity_fde",
     "mss",
+    "groupfusion_gf",
+    "groupfusion_rs",
+    "groupfusion_qv",
     "pf_llr",
     "ekf",
 ]

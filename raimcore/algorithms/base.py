@@ -49,6 +49,7 @@ class EpochData:
     sigma_baro_m : its 1-sigma (m) or None.
     p_fa, p_md : false-alarm and missed-detection probabilities.
     seed : the scenario seed; algorithms that need randomness use :meth:`rng`.
+    notes : remarks about the data for the user (e.g. satellites of a recording left out).
     """
 
     t_s: np.ndarray
@@ -72,6 +73,7 @@ class EpochData:
     sigma_baro_m: float | None = None
     hal_m: float = 40.0
     val_m: float = 50.0
+    notes: tuple[str, ...] = ()
 
     @property
     def n_epochs(self) -> int:

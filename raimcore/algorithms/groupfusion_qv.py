@@ -1,0 +1,45 @@
+"""QV: quality value / confidence index isolation (Patino-Studencka 2010), seed 004's baseline."""
+
+from __future__ import annotations
+
+from .._validate import check_choice, check_range
+from ..groupfusion import qv_isolate, select_groups
+from ._groupfusion_common import groups_option, run_multi_fault
+from .base import AlgorithmSpec, EpochData, register
+
+SUMMARY = (
+    "The quality value method tests the same groups as GF but listens only to the groups "
+    "that fail: each failing group gives a confidence index to its members. A satellite's "
+    "score is the share of its groups that fail, and satellites scoring more than M above "
+    "the mean are isolated. One baseline of seed 004."
+)
+
+EQUATIONS = r"""
+- Same groups and test as GF: group $g$ fails when $\theta_g > T_g$
+- Score: $QV_j = \#\{g \ni j : \theta_g > T_g\} / \#\{g \ni j\}$
+- Isolation: $QV_j > \frac1N \sum_i QV_i + M$
+"""
+
+
+def run(data: EpochData, options: dict):
+    n_groups = groups_option(options, "qv_groups")
+    margin = check_range("qv_margin", options.get("qv_margin", 0.1), 0.0, 1.0)
+    norm = check_choice("qv_norm", options.get("qv_norm", "share"), ("share", "max"))
+
+    def isolate(h, y, w, p_fa, rng):
+        g = select_groups(y.shape[-1], h.shape[-1] + 1, n_groups)
+        return qv_isolate(h, y, g, p_fa, weights_lsq=w, margin=margin, norm=norm)
+
+    return run_multi_fault(data, isolate, "qv_score", "qv_threshold")
+
+
+SPEC = register(AlgorithmSpec(
+    name="qv",
+    label="Quality value, multi-fault (seed 004 baseline)",
+    summary=SUMMARY,
+    equations=EQUATIONS,
+    run=run,
+    options={"qv_groups": 0, "qv_margin": 0.1, "qv_norm": "share"},
+    reference="Patino-Studencka et al. (2010), confidence index RAIM, as cited by seed 004 "
+              "(its ref. [6]); reading in ALGORITHMS.md section 4.",
+))
