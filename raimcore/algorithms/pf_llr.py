@@ -58,7 +58,7 @@ EQUATIONS = r"""
 """
 
 #: Monte Carlo size of the threshold calibration (runs x armed epochs per run).
-CALIBRATION_RUNS = 64
+CALIBRATION_RUNS = 32
 CALIBRATION_ARMED_EPOCHS = 60
 #: Seed of the calibration runs: fixed, so a configuration always gets the same tau.
 CALIBRATION_SEED = 2002
