@@ -24,7 +24,7 @@ from .figures import PanelFigure, RunView
 ENGINE_COLUMNS = frozenset({
     "t_s", "n_sat", "status", "statistic", "threshold", "alarm", "isolated", "excluded",
     "hpe_before_m", "hpe_after_m", "vpe_before_m", "vpe_after_m", "faulty_truth",
-    "pd_theory", "n_excluded", "epoch", "normalised", "dof",
+    "pd_theory", "n_excluded", "epoch", "normalised", "dof", "memory_epochs",
 })
 
 

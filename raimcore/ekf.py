@@ -19,7 +19,7 @@ import numpy as np
 from scipy import stats
 
 from .lsq import clock_columns, wls
-from .pf import ProcessModel
+from .pf import ProcessModel, availability, cov_enu_to_ecef
 
 __all__ = ["EkfRun", "run_ekf"]
 
@@ -93,8 +93,7 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m: float,
     r_n, e_n, s_n = pr.shape
     d = model.dim
     cc = clock_columns(sys_idx, n_sys)
-    n_states = 3 + (used[:, :, None] & (cc[None] > 0)).any(axis=1).sum(-1)
-    available = used.sum(-1) >= n_states + 1
+    n_states, available = availability(used, sys_idx, n_sys)
     dof = used.sum(-1)
     threshold = np.where(available, stats.chi2.isf(p_fa, np.maximum(dof, 1)), np.nan)
     est = np.full((r_n, e_n, d), np.nan)
@@ -118,13 +117,7 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m: float,
     x[:, :3] = fix.pos_ecef_m
     x[:, model.clk0:] = np.nan_to_num(fix.clock_m)
     # Initial P: the fix's covariance (ENU + clocks, rotated to ECEF), inflated.
-    from .geometry import ecef_to_geodetic, enu_rotation
-
-    lat, lon, _ = ecef_to_geodetic(fix.pos_ecef_m)
-    t = np.zeros((r_n, 3 + n_sys, 3 + n_sys))
-    t[:, :3, :3] = np.swapaxes(enu_rotation(lat, lon), -1, -2)
-    t[:, 3:, 3:] = np.eye(n_sys)
-    c = t @ fix.cov_enu @ np.swapaxes(t, -1, -2) * init_inflate**2
+    c = cov_enu_to_ecef(fix.pos_ecef_m, fix.cov_enu) * init_inflate**2
     p = np.zeros((r_n, d, d))
     idx = np.r_[0:3, model.clk0:d]
     p[:, idx[:, None], idx[None, :]] = c

@@ -58,7 +58,7 @@ EQUATIONS = r"""
 """
 
 #: Monte Carlo size of the threshold calibration (runs x armed epochs per run).
-CALIBRATION_RUNS = 64
+CALIBRATION_RUNS = 32
 CALIBRATION_ARMED_EPOCHS = 60
 #: Seed of the calibration runs: fixed, so a configuration always gets the same tau.
 CALIBRATION_SEED = 2002
@@ -123,7 +123,7 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     n = check_int("n_particles", options.get("n_particles", 100), 2, 1_000_000)
     window = check_int("window", options.get("window", 30), 1, 100_000)
     burn_in = check_int("burn_in", options.get("burn_in", 30), 0, 100_000)
-    p_fa = check_probability("p_fa_window", options.get("p_fa_window", 0.01))
+    p_fa = check_probability("p_fa_window", options.get("p_fa_window", 1e-3))
     cache = check_choice("tau_cache", options.get("tau_cache", "memory"),
                          ("memory", "disk", "off"))
     tau_opt = _parse_tau(options.get("tau", "auto"))
@@ -167,7 +167,7 @@ SPEC = register(AlgorithmSpec(
     equations=EQUATIONS,
     run=run,
     options={"n_particles": 100, "window": 30, "burn_in": 30, "tau": "auto",
-             "p_fa_window": 0.01, "tau_cache": "memory", "model": "static",
+             "p_fa_window": 1e-3, "tau_cache": "memory", "model": "static",
              "q_pos_mps": 0.1, "q_vel_mps2": 0.5, "q_clk_mps": 0.1},
     reference="Particle filter and log-likelihood ratio RAIM (seed 002): SIR particle "
               "filter bank, windowed cumulative LLR, N = 100, W = 30.",
