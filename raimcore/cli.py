@@ -214,6 +214,126 @@ def _cmd_dashboard(args) -> int:
     return 0
 
 
+COMPARE_EPILOG = """\
+examples:
+  raim compare seed002 --algorithms pf-llr,ekf      # the paper's PF against the EKF
+  raim compare seed004-multi --algorithms gf,rs,qv,parity --set max_exclusions=3
+  raim compare default --fault G10,step,60,100 --seeds 10
+  raim compare --obs STATION.rnx --nav BRDC.rnx --fault G05,ramp,2,600
+
+Every algorithm sees the same measurements (one noise draw a seed, the same faults).
+With --seeds N the rates and errors are averaged over seeds seed..seed+N-1 (first alarm:
+median). Options set with --set reach every algorithm that has them.
+"""
+
+
+def _add_compare(sub):
+    p = sub.add_parser("compare", help="run several algorithms on the same measurements",
+                       description="Run several algorithms on one scenario (the same noise "
+                       "draw and faults) and print one line of headline numbers each.",
+                       epilog=COMPARE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scenario", nargs="?",
+                   help="built-in scenario name (see 'raim list') or a .toml file; optional "
+                        "with --obs")
+    _add_recording_args(p)
+    p.add_argument("--algorithms", metavar="A,B,...",
+                   help="comma-separated algorithm names (default: all registered)")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario key or algorithm option (repeatable)")
+    p.add_argument("--fault", dest="faults", action="append", default=[], metavar="SPEC",
+                   help="inject a fault, replacing the scenario's (repeatable; as in 'run')")
+    p.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
+    p.add_argument("--seeds", type=int, default=1,
+                   help="number of consecutive seeds to average over (default %(default)s)")
+    p.add_argument("--out", type=Path, help="write the comparison to PATH.csv or PATH.json")
+    p.set_defaults(func=_cmd_compare, algorithm=None)
+
+
+#: (summary key, column title, format) of the comparison table.
+COMPARE_COLUMNS = (
+    ("false_alarm_rate", "false al.", "pct"),
+    ("first_alarm_t_s", "1st alarm", "s"),
+    ("detection_rate", "detected", "pct"),
+    ("correct_isolation_rate", "isolated", "pct"),
+    ("hpe_after_faulted_mean_m", "HPE flt m", "m"),
+    ("rmse_before_m", "RMSE bef", "m"),
+    ("rmse_after_m", "RMSE aft", "m"),
+    ("unavailable_epochs", "unavail", "n"),
+)
+
+
+def _cmd_compare(args) -> int:
+    from .scenario import compare_algorithms, load_scenario
+
+    if args.seeds < 1:
+        raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
+    if args.out is not None and args.out.suffix.lower() not in (".csv", ".json"):
+        raise ValueError(f"--out must end in .csv or .json, got {str(args.out)!r}")
+    names = None
+    if args.algorithms:
+        names = [n.strip() for n in args.algorithms.split(",") if n.strip()]
+    over = _overrides(args)
+    scenario = _recording_scenario(args, over) or load_scenario(args.scenario, **over)
+    seed0 = scenario.seed
+    per_seed = [compare_algorithms(scenario.replace(seed=seed0 + k), names)
+                for k in range(args.seeds)]
+    rows = []
+    for j, res in enumerate(per_seed[0]):
+        row = {"algorithm": res.scenario.algorithm}
+        for key, _, _ in COMPARE_COLUMNS:
+            vals = [r[j].summary.get(key) for r in per_seed]
+            vals = [float(v) for v in vals if v is not None and not
+                    (isinstance(v, float) and math.isnan(v))]
+            agg = (sorted(vals)[len(vals) // 2] if key == "first_alarm_t_s"
+                   else sum(vals) / len(vals)) if vals else None
+            row[key] = agg
+        rows.append(row)
+    for note in per_seed[0][0].data.notes:
+        print(f"note: {note}")
+    print(f"scenario {scenario.name}: {per_seed[0][0].summary['epochs']} epochs, "
+          f"seed {seed0}" + (f"..{seed0 + args.seeds - 1}" if args.seeds > 1 else ""))
+    print(format_comparison(rows))
+    if args.out is not None:
+        _write_rows(rows, args.out)
+        print(f"comparison written to {args.out}")
+    return 0
+
+
+def format_comparison(rows: list[dict]) -> str:
+    """The comparison rows of :func:`_cmd_compare` as an aligned text table."""
+    width = max(9, *(len(r["algorithm"]) for r in rows))
+    head = f"{'algorithm':<{width}}" + "".join(f" {t:>10}" for _, t, _ in COMPARE_COLUMNS)
+    lines = [head]
+    for r in rows:
+        cells = []
+        for key, _, kind in COMPARE_COLUMNS:
+            v = r[key]
+            if v is None:
+                cells.append("-")
+            elif kind == "pct":
+                cells.append(_pct(v))
+            elif kind == "s":
+                cells.append(f"{v:g} s")
+            elif kind == "n":
+                cells.append(f"{v:g}")
+            else:
+                cells.append(f"{v:.2f}")
+        lines.append(f"{r['algorithm']:<{width}}" + "".join(f" {c:>10}" for c in cells))
+    return "\n".join(lines)
+
+
+def _write_rows(rows: list[dict], path: Path) -> None:
+    if path.suffix.lower() == ".json":
+        path.write_text(json.dumps(rows, indent=1))
+        return
+    import csv
+
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
 MONTECARLO_EPILOG = """\
 examples:
   raim montecarlo seed004-table2 --runs 1000 --workers 2 --out mc/
@@ -282,6 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for add in (_add_list, _add_run, _add_dashboard):
         add(sub)
+    _add_compare(sub)
     _add_montecarlo(sub)
     return parser
 

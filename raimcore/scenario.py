@@ -604,3 +604,41 @@ def run_scenario(s: Scenario | str, **overrides) -> ScenarioResult:
     out = run_algorithm(algorithms.get(s.algorithm), data, s.algorithm_options())
     table = make_table(data, out)
     return ScenarioResult(s, data, out, table, summarize(table))
+
+
+def compare_algorithms(s: Scenario | str, names: list[str] | None = None,
+                       **overrides) -> list[ScenarioResult]:
+    """Run several algorithms on the same measurements (one noise draw, the same faults).
+
+    Parameters
+    ----------
+    s : a scenario object, a built-in name or a TOML path.
+    names : algorithm names (default: every registered algorithm).
+    overrides : scenario keys or algorithm options, as for :func:`run_scenario`.
+
+    Returns
+    -------
+    One :class:`ScenarioResult` per algorithm, in the order of ``names``. An algorithm
+    that cannot run on these measurements reports "unavailable" epochs, as in a single run.
+
+    Raises
+    ------
+    ValueError
+        An unknown algorithm name (the message lists the registered ones).
+    """
+    if isinstance(s, str | Path):
+        s = load_scenario(s, **overrides)
+    elif overrides:
+        s = s.replace(**overrides)
+    names = list(algorithms.names() if names is None else names)
+    if not names:
+        raise ValueError("names must list at least one algorithm")
+    specs = [algorithms.get(n) for n in names]  # unknown names fail before any work
+    data = build_epoch_data(s)  # the measurements are drawn once, shared by all
+    results = []
+    for spec in specs:
+        sa = dataclasses.replace(s, algorithm=spec.name)
+        out = run_algorithm(spec, data, sa.algorithm_options())
+        table = make_table(data, out)
+        results.append(ScenarioResult(sa, data, out, table, summarize(table)))
+    return results

@@ -50,3 +50,35 @@ def test_console_entry_point_runs():
     out = subprocess.run([sys.executable, "-m", "raimcore.cli", "run", "default", "-q"],
                          capture_output=True, text=True, check=True)
     assert json.loads(out.stdout)["epochs"] == 600
+
+
+def test_compare_shares_the_measurements_and_prints_one_row_each(tmp_path, capsys):
+    from raimcore.scenario import compare_algorithms, run_scenario
+
+    out = tmp_path / "cmp.json"
+    assert main(["compare", "seed000-step", "--algorithms", "parity,mss", "--set",
+                 "sigma_m=3", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    lines = text.splitlines()
+    assert lines[1].split()[:3] == ["algorithm", "false", "al."]
+    assert [ln.split()[0] for ln in lines[2:4]] == ["parity", "mss"]
+    rows = json.loads(out.read_text())
+    assert [r["algorithm"] for r in rows] == ["parity", "mss"]
+    # The same numbers as a single run of each algorithm (same seed, same noise draw).
+    for row in rows:
+        single = run_scenario("seed000-step", sigma_m=3, algorithm=row["algorithm"]).summary
+        assert row["correct_isolation_rate"] == pytest.approx(single["correct_isolation_rate"])
+        assert row["rmse_after_m"] == pytest.approx(single["rmse_after_m"])
+    res = compare_algorithms("seed000-step", ["parity", "mss"], sigma_m=3)
+    assert res[0].data is res[1].data
+    assert rows[0]["correct_isolation_rate"] == 1.0
+
+
+def test_compare_averages_over_seeds_and_rejects_bad_input(capsys):
+    assert main(["compare", "seed000-step", "--algorithms", "parity", "--seeds", "3"]) == 0
+    text = capsys.readouterr().out
+    assert "seed 0..2" in text
+    assert main(["compare", "seed000-step", "--algorithms", "nope"]) == 2
+    assert "algorithm must be one of" in capsys.readouterr().err
+    assert main(["compare", "seed000-step", "--seeds", "0"]) == 2
+    assert "--seeds must be >= 1" in capsys.readouterr().err
