@@ -10,6 +10,8 @@ import re
 
 import numpy as np
 
+from raimcore.scenario import in_fault_memory
+
 from .figures import RunView
 
 # TeX macros -> Unicode, for viser's Markdown (which renders no math): equations are shown
@@ -120,8 +122,15 @@ def verdict(view: RunView, p_fa: float | None = None) -> str:
             else:
                 msg += ", nothing excluded"
         lines.append(msg + ".")
-    before = alarm & ~np.any((view.fault_bias_m != 0.0) & view.used, axis=1)
-    n_fa = int(before.sum())
+    faulted = np.any((view.fault_bias_m != 0.0) & view.used, axis=1)
+    # Windowed or filtering algorithms still hold a fault for `memory_epochs` after it ends:
+    # their alarms there are not false alarms (the same rule as raimcore.scenario.summarize).
+    memory = in_fault_memory(faulted, view.column("memory_epochs"))
+    n_fa = int(np.sum(alarm & ~faulted & ~memory))
     if n_fa:
         lines.append(f"{n_fa} alarm{'s' if n_fa != 1 else ''} while no fault was on.")
+    n_mem = int(np.sum(alarm & memory))
+    if n_mem:
+        lines.append(f"{n_mem} alarm{'s' if n_mem != 1 else ''} just after the fault ended, "
+                     f"while it was still in the algorithm's window.")
     return " ".join(lines) + tail

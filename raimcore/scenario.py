@@ -526,7 +526,7 @@ def summarize(table: ResultTable) -> dict[str, Any]:
     faulted = table["faulty_truth"] != ""
     alarm = table["alarm"]
     excl = table["excluded"]
-    after = _in_fault_memory(faulted, table["memory_epochs"] if "memory_epochs" in table
+    after = in_fault_memory(faulted, table["memory_epochs"] if "memory_epochs" in table
                              else None)
     nominal = ~faulted & ~after & (table["status"] != "unavailable")
     out: dict[str, Any] = {
@@ -560,7 +560,7 @@ def summarize(table: ResultTable) -> dict[str, Any]:
     return out
 
 
-def _in_fault_memory(faulted, memory_epochs) -> np.ndarray:
+def in_fault_memory(faulted, memory_epochs) -> np.ndarray:
     """(E,) bool: not faulted, but a faulted epoch lies within the last ``memory_epochs``
     epochs (``memory_epochs`` (E,) ints, or None for memoryless algorithms)."""
     faulted = np.asarray(faulted, dtype=bool)

@@ -208,6 +208,22 @@ def test_verdict_without_fault_counts_false_alarms():
     assert text.startswith("No fault injected:") and "600 epochs" in text
 
 
+def test_verdict_does_not_call_alarms_in_the_window_after_a_fault_false():
+    from app.session import run_view
+
+    res = run_scenario(load_scenario("seed002", seed=3))
+    view = run_view(res)
+    text = teaching.verdict(view, 1e-3)
+    assert text.startswith("Fault on G19 detected at t = ")
+    # pf-llr's window (W = 30) still holds the step for a while after t = 152 s: those
+    # alarms are reported as such, not as alarms "while no fault was on".
+    assert "just after the fault ended" in text
+    assert "while no fault was on" not in text
+    view_no_memory = type(view)(**{**view.__dict__, "table": {
+        k: v for k, v in view.table.items() if k != "memory_epochs"}})
+    assert "while no fault was on" in teaching.verdict(view_no_memory, 1e-3)
+
+
 def test_tex_is_readable_without_a_math_renderer():
     assert teaching.tex_to_text(r"\lambda = \lVert V b \rVert^2 / \sigma^2") == \
         "λ = ‖V b‖^2 / σ^2"

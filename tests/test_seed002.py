@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from raimcore.scenario import _in_fault_memory, load_scenario, run_scenario
+from raimcore.scenario import in_fault_memory, load_scenario, run_scenario
 
 SEEDS = (0, 1, 2, 3, 4)
 
@@ -64,10 +64,10 @@ def test_summary_leaves_the_window_after_a_fault_out_of_false_alarms(runs):
 
 def test_in_fault_memory():
     faulted = np.array([0, 0, 1, 1, 0, 0, 0, 0, 1, 0], dtype=bool)
-    np.testing.assert_array_equal(_in_fault_memory(faulted, np.full(10, 3)),
+    np.testing.assert_array_equal(in_fault_memory(faulted, np.full(10, 3)),
                                   [0, 0, 0, 0, 1, 1, 0, 0, 0, 1])
-    assert not _in_fault_memory(faulted, np.ones(10)).any()
-    assert not _in_fault_memory(faulted, None).any()
+    assert not in_fault_memory(faulted, np.ones(10)).any()
+    assert not in_fault_memory(faulted, None).any()
 
 
 def test_dashboard_panels_show_beta_tau_llr_and_neff(runs):
