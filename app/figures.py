@@ -279,7 +279,10 @@ def detection_figure(view: RunView) -> PanelFigure:
     pd = view.column("pd_theory")
     if pd is not None:
         data.append({"type": "scatter", "x": t, "y": pd, "mode": "lines",
-                     "name": "P_d theory", "line": {"color": "#f59614", "width": 1.5},
+                     # The engine's ncx2 probability of the snapshot chi-square test on the
+                     # same epoch: a reference for every algorithm, exact only for that test.
+                     "name": "P_d theory (snapshot χ² test)",
+                     "line": {"color": "#f59614", "width": 1.5},
                      "xaxis": "x", "yaxis": "y3"})
     shapes = _fault_windows(view)
     shapes.append({"type": "line", "xref": "paper", "yref": "y2", "x0": 0, "x1": 1, "y0": 1,

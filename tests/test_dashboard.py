@@ -145,7 +145,8 @@ def test_detection_figure_carries_the_table(default_view, default_result):
     fig = figures.detection_figure(default_view)
     doc = json.loads(fig.to_json(42))
     names = [tr["name"] for tr in doc["data"]]
-    assert {"statistic", "threshold", "statistic / threshold", "P_d theory"} <= set(names)
+    assert {"statistic", "threshold", "statistic / threshold",
+            "P_d theory (snapshot χ² test)"} <= set(names)
     stat = _decode(doc["data"][names.index("statistic")]["y"])
     np.testing.assert_array_equal(stat, default_result.table["statistic"])
     norm = _decode(doc["data"][names.index("statistic / threshold")]["y"])
