@@ -56,19 +56,24 @@ def _add_run(sub):
                        description="Run one scenario through an algorithm, write the "
                        "per-epoch table and print a short summary.",
                        epilog=RUN_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    _add_scenario_args(p)
+    p.add_argument("--algorithm", "-a", help="algorithm to use (see 'raim list')")
+    p.add_argument("--out", type=Path, help="write the table to PATH.csv or PATH.json")
+    p.add_argument("--quiet", "-q", action="store_true", help="print only the summary JSON")
+    p.set_defaults(func=_cmd_run)
+
+
+def _add_scenario_args(p):
+    """The arguments that choose and modify a scenario (shared by run and compare)."""
     p.add_argument("scenario", nargs="?",
                    help="built-in scenario name (see 'raim list') or a .toml file; optional "
                         "with --obs")
     _add_recording_args(p)
-    p.add_argument("--algorithm", "-a", help="algorithm to use (see 'raim list')")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key or algorithm option (repeatable)")
     p.add_argument("--fault", dest="faults", action="append", default=[], metavar="SPEC",
                    help="inject a fault, replacing the scenario's (repeatable; see below)")
     p.add_argument("--seed", type=int, help="random seed (same seed, same result)")
-    p.add_argument("--out", type=Path, help="write the table to PATH.csv or PATH.json")
-    p.add_argument("--quiet", "-q", action="store_true", help="print only the summary JSON")
-    p.set_defaults(func=_cmd_run)
 
 
 def _add_recording_args(p):
@@ -221,6 +226,8 @@ examples:
   raim compare default --fault G10,step,60,100 --seeds 10
   raim compare --obs STATION.rnx --nav BRDC.rnx --fault G05,ramp,2,600
 
+--fault and --set are as in 'raim run' (see 'raim run --help').
+
 Every algorithm sees the same measurements (one noise draw a seed, the same faults).
 With --seeds N the rates and errors are averaged over seeds seed..seed+N-1 (first alarm:
 median). Options set with --set reach every algorithm that has them.
@@ -232,17 +239,9 @@ def _add_compare(sub):
                        description="Run several algorithms on one scenario (the same noise "
                        "draw and faults) and print one line of headline numbers each.",
                        epilog=COMPARE_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scenario", nargs="?",
-                   help="built-in scenario name (see 'raim list') or a .toml file; optional "
-                        "with --obs")
-    _add_recording_args(p)
+    _add_scenario_args(p)
     p.add_argument("--algorithms", metavar="A,B,...",
                    help="comma-separated algorithm names (default: all registered)")
-    p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a scenario key or algorithm option (repeatable)")
-    p.add_argument("--fault", dest="faults", action="append", default=[], metavar="SPEC",
-                   help="inject a fault, replacing the scenario's (repeatable; as in 'run')")
-    p.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
     p.add_argument("--seeds", type=int, default=1,
                    help="number of consecutive seeds to average over (default %(default)s)")
     p.add_argument("--out", type=Path, help="write the comparison to PATH.csv or PATH.json")
