@@ -118,11 +118,24 @@ def _overrides(args) -> dict:
     return over
 
 
+def _check_out_file(path: Path | None) -> None:
+    """Reject an ``--out`` path before the run, not after it: a .csv or .json file in a
+    folder that exists."""
+    if path is None:
+        return
+    if path.suffix.lower() not in (".csv", ".json"):
+        raise ValueError(f"--out must end in .csv or .json, got {str(path)!r}")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise ValueError(f"--out: folder {str(folder)!r} does not exist (create it first)")
+    if path.is_dir():
+        raise ValueError(f"--out: {str(path)!r} is a folder; give a file name")
+
+
 def _cmd_run(args) -> int:
     from .scenario import load_scenario, run_scenario
 
-    if args.out is not None and args.out.suffix.lower() not in (".csv", ".json"):
-        raise ValueError(f"--out must end in .csv or .json, got {str(args.out)!r}")
+    _check_out_file(args.out)
     over = _overrides(args)
     scenario = _recording_scenario(args, over) or load_scenario(args.scenario, **over)
     result = run_scenario(scenario)
@@ -266,8 +279,7 @@ def _cmd_compare(args) -> int:
 
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
-    if args.out is not None and args.out.suffix.lower() not in (".csv", ".json"):
-        raise ValueError(f"--out must end in .csv or .json, got {str(args.out)!r}")
+    _check_out_file(args.out)
     names = None
     if args.algorithms:
         names = [n.strip() for n in args.algorithms.split(",") if n.strip()]
@@ -414,6 +426,10 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"raim: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # e.g. --out on a read-only disk: a message, not a traceback
+        print(f"raim: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "),
+              file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

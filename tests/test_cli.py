@@ -35,6 +35,18 @@ def test_errors_exit_2_with_a_message(capsys):
     assert "--out must end in .csv or .json" in capsys.readouterr().err
 
 
+def test_bad_out_path_is_refused_before_the_run(tmp_path, capsys):
+    missing = tmp_path / "no_such_folder" / "r.csv"
+    assert main(["run", "default", "--out", str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert "no_such_folder" in err and "does not exist" in err
+    assert not missing.parent.exists()
+    folder = tmp_path / "a.json"
+    folder.mkdir()
+    assert main(["compare", "default", "--algorithms", "parity", "--out", str(folder)]) == 2
+    assert "is a folder" in capsys.readouterr().err
+
+
 def test_list_and_help(capsys):
     assert main(["list"]) == 0
     text = capsys.readouterr().out
