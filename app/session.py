@@ -132,6 +132,10 @@ class Session:
             self.algorithm = gui.add_dropdown("Algorithm", algorithms.names(),
                                               initial_value=s.algorithm)
             self.sigma = gui.add_slider("Noise sigma (m)", 0.5, 50.0, 0.5, s.sigma_m)
+            self.noise_corr = gui.add_slider(
+                "Noise correlation (s)", 0.0, max(600.0, s.noise_corr_s), 5.0, s.noise_corr_s,
+                hint="correlation time of the noise (first-order Gauss-Markov); 0 = white. "
+                     "On a recording: the assumed correlation of the real errors")
             self.p_fa = gui.add_number("P_fa", s.p_fa, min=1e-9, max=0.5, step=1e-6)
             self.mask = gui.add_slider("Elevation mask (deg)", 0.0, 40.0, 1.0, s.mask_deg)
             self.seed = gui.add_number("Random seed", int(s.seed), min=0, max=2**31 - 1,
@@ -175,7 +179,7 @@ class Session:
         gui.main_panel.dock_left()
         gui.main_panel.set_width(340)
 
-        for h in (self.sigma, self.p_fa, self.mask, self.seed):
+        for h in (self.sigma, self.noise_corr, self.p_fa, self.mask, self.seed):
             h.on_update(lambda _e: self._on_control())
         self.preset.on_update(lambda _e: self._on_preset())
         self.algorithm.on_update(lambda _e: self._on_algorithm())
@@ -232,6 +236,7 @@ class Session:
         """The scenario the controls describe now."""
         changes = {
             "algorithm": self.algorithm.value, "sigma_m": float(self.sigma.value),
+            "noise_corr_s": float(self.noise_corr.value),
             "p_fa": float(self.p_fa.value), "mask_deg": float(self.mask.value),
             "seed": int(self.seed.value),
         }
@@ -274,6 +279,8 @@ class Session:
             s = self.scenario
             self.algorithm.value = s.algorithm
             self.sigma.value = s.sigma_m
+            self.noise_corr.max = max(float(self.noise_corr.max), s.noise_corr_s)
+            self.noise_corr.value = s.noise_corr_s
             self.p_fa.value = s.p_fa
             self.mask.value = s.mask_deg
             self.seed.value = int(s.seed)

@@ -577,23 +577,26 @@ class Calibration:
 def calibrate_tau(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, n_sys: int, noise,
                   model: ProcessModel, *, n_particles: int, window: int, burn_in: int,
                   p_fa_window: float, n_runs: int, n_armed: int,
-                  rng: np.random.Generator) -> Calibration:
+                  rng: np.random.Generator, dt_s: float = 1.0) -> Calibration:
     """Calibrate ``tau`` by fault-free Monte Carlo runs of the same bank.
 
     The geometry is frozen (satellites ``(S, 3)`` and receiver ``(3,)`` at one epoch: the
-    lines of sight turn by well under a degree over a calibration run); ``n_runs``
-    independent realisations of the noise are filtered at once (one more batch axis of the
-    bank), each ``1 + burn_in + window + n_armed`` epochs long at 1 s; ``tau`` comes from
-    the pooled ``beta(k)`` of the ``n_armed`` armed epochs of every run
+    lines of sight turn by well under a degree over a calibration run at 1 s epochs, a few
+    degrees at 30 s); ``n_runs`` independent realisations of the noise are filtered at once
+    (one more batch axis of the bank), each ``1 + burn_in + window + n_armed`` epochs long
+    at the scenario's epoch interval ``dt_s`` (the process noise and a time-correlated
+    noise model, ``noise.corr_s``, both depend on it); ``tau`` comes from the pooled
+    ``beta(k)`` of the ``n_armed`` armed epochs of every run
     (:func:`threshold_from_samples`).
     """
     sv = np.asarray(pos_sv_ecef_m, dtype=float)
     s_n = sv.shape[0]
     e_n = 1 + burn_in + window + n_armed
+    t = np.arange(e_n, dtype=float) * check_positive("dt_s", dt_s)
     rng_m = np.linalg.norm(sv - np.asarray(pos_rx_ecef_m, dtype=float), axis=-1)
-    pr = rng_m + noise.sample(rng, (n_runs, e_n, s_n))
+    pr = rng_m + noise.sample(rng, (n_runs, e_n, s_n), t_s=t)
     run = run_llr_bank(np.broadcast_to(sv, (e_n, s_n, 3)), pr, np.ones((e_n, s_n), bool),
-                       np.arange(e_n, dtype=float), sys_idx, n_sys, noise, model,
+                       t, sys_idx, n_sys, noise, model,
                        n_particles=n_particles, window=window, burn_in=burn_in, rng=rng)
     beta = run.beta[:, run.armed]
     return Calibration(threshold_from_samples(beta, p_fa_window, window), beta, p_fa_window)

@@ -13,6 +13,7 @@ Satellites with no usable ephemeris are left out and said so in ``EpochData.note
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from functools import lru_cache
 from pathlib import Path
@@ -22,11 +23,12 @@ import numpy as np
 from .algorithms.base import EpochData
 from .faults import fault_biases
 from .geometry import az_el, ecef_to_geodetic
-from .noise import make_noise
+from .noise import GaussMarkovFit, fit_gauss_markov, make_noise
 from .rinex import ObsFile, read_nav, read_obs
 from .spp import SYSTEM_LETTER, Corrected, correct, elevation_sigma, solve
 
-__all__ = ["recording_epoch_data", "recording_scenario", "load_recording", "receiver_ecef_m"]
+__all__ = ["recording_epoch_data", "recording_scenario", "load_recording", "receiver_ecef_m",
+           "error_statistics"]
 
 #: Defaults for real data (scenario keys): code noise of a geodetic receiver at the zenith,
 #: a 10-degree mask against multipath.
@@ -140,11 +142,53 @@ def recording_epoch_data(s) -> EpochData:
         rng = np.random.default_rng(np.random.SeedSequence(int(s.seed)).spawn(3)[2])
         baro_alt = ecef_to_geodetic(truth_e)[2] + s.sigma_baro_m * rng.standard_normal(len(t))
     noise = make_noise(s.noise, s.sigma_m, mixture_eps=s.mixture_eps,
-                       mixture_scale=s.mixture_scale, student_nu=s.student_nu)
-    return EpochData(
+                       mixture_scale=s.mixture_scale, student_nu=s.student_nu,
+                       corr_s=s.noise_corr_s)  # the assumed model of the real errors
+    data = EpochData(
         t_s=t, sat_names=tuple(names), sys_idx=sys_idx, systems=systems, pos_sv_ecef_m=sv,
         pr_m=pr, used=used, az_rad=az, el_rad=el, sigma_m=elevation_sigma(el, s.sigma_m),
         noise=noise, pos_rx_true_ecef_m=truth_e, vel_rx_true_ecef_mps=np.zeros_like(truth_e),
         fault_bias_m=bias, p_fa=s.p_fa, p_md=s.p_md, seed=int(s.seed), baro_alt_m=baro_alt,
         sigma_baro_m=s.sigma_baro_m if s.baro else None, hal_m=s.hal_m, val_m=s.val_m,
         notes=tuple(notes))
+    try:
+        fit = error_statistics(data)
+    except ValueError:  # too few satellites for an estimate: nothing to say
+        return data
+    note = (f"measured pseudorange errors against the station position: sigma "
+            f"{fit.sigma_m:.2f} m at the zenith (robust; scenario sigma_m {s.sigma_m:g}), "
+            f"correlation {fit.rho:.2f} over {fit.dt_s:g} s")
+    if 0 < fit.corr_s < math.inf:
+        note += (f" (Gauss-Markov time {fit.corr_s:.0f} s; scenario noise_corr_s "
+                 f"{s.noise_corr_s:g}: PF-LLR calibrates its threshold on these two keys)")
+    return dataclasses.replace(data, notes=data.notes + (note,))
+
+
+def error_statistics(data: EpochData) -> GaussMarkovFit:
+    """Scale and time correlation of a recording's real pseudorange errors.
+
+    The errors are the corrected pseudoranges minus the ranges from the true (station)
+    position, with each epoch's receiver clock (one per system) removed as the weighted
+    mean over that system's satellites; faulted measurements (``fault_bias_m != 0``) are
+    left out. Each error is divided by its elevation model (:func:`raimcore.spp.
+    elevation_sigma` at ``sigma_m = 1``) and by ``sqrt(1 - w_i / sum w)`` (the share the
+    clock estimate takes), so ``sigma_m`` of the fit is directly comparable to the
+    scenario's ``sigma_m`` and ``corr_s`` to its ``noise_corr_s``
+    (:func:`raimcore.noise.fit_gauss_markov`).
+    """
+    rng = np.linalg.norm(data.pos_sv_ecef_m - data.pos_rx_true_ecef_m[:, None, :], axis=-1)
+    d = data.pr_m - rng
+    valid = data.used & np.isfinite(d) & (data.fault_bias_m == 0)
+    sig1 = elevation_sigma(data.el_rad, 1.0)
+    w = np.where(valid, 1.0 / sig1**2, 0.0)
+    z = np.full(d.shape, np.nan)
+    for j in range(len(data.systems)):
+        col = data.sys_idx == j
+        wj, dj = w[:, col], np.where(valid[:, col], d[:, col], 0.0)
+        w_sum = wj.sum(-1, keepdims=True)
+        enough = (valid[:, col].sum(-1, keepdims=True) >= 2) & valid[:, col]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            clk = (wj * dj).sum(-1, keepdims=True) / w_sum
+            zj = (dj - clk) / (sig1[:, col] * np.sqrt(1.0 - wj / w_sum))
+        z[:, col] = np.where(enough, zj, np.nan)
+    return fit_gauss_markov(z, data.t_s)

@@ -60,8 +60,9 @@ class Scenario:
     ``cruise_alt_m``, ``climb_s``, ``turn_start_s``, ``turn_rate_dps``, ``turn_deg``
     (flight); ``clock_drift_mps``.
     Measurements: ``mask_deg``, ``sigma_m``, ``noise`` (gaussian | mixture | student-t),
-    ``mixture_eps``, ``mixture_scale``, ``student_nu``, ``faults``, ``restrict``, ``baro``,
-    ``sigma_baro_m``.
+    ``mixture_eps``, ``mixture_scale``, ``student_nu``, ``noise_corr_s`` (correlation time
+    of the noise in s, first-order Gauss-Markov; 0 = white; see :mod:`raimcore.noise`),
+    ``faults``, ``restrict``, ``baro``, ``sigma_baro_m``.
     Integrity: ``algorithm``, ``p_fa``, ``p_md``, ``hal_m``, ``val_m``, ``seed``;
     algorithm-specific keys land in ``options``.
     Real recordings (``source = "rinex"``, see :mod:`raimcore.recording`): ``obs``,
@@ -100,6 +101,7 @@ class Scenario:
     mixture_eps: float = 0.1
     mixture_scale: float = 5.0
     student_nu: float = 3.0
+    noise_corr_s: float = 0.0
     faults: tuple[Fault, ...] = ()
     restrict: tuple[Restrict, ...] = ()
     baro: bool = False
@@ -235,6 +237,7 @@ def _validate(s: Scenario) -> None:
     check_range("mask_deg", s.mask_deg, -10.0, 89.0)
     check_positive("sigma_m", s.sigma_m)
     check_choice("noise", s.noise, NOISE_KINDS)
+    check_positive("noise_corr_s", s.noise_corr_s, allow_zero=True)
     check_probability("p_fa", s.p_fa)
     check_probability("p_md", s.p_md)
     check_positive("sigma_baro_m", s.sigma_baro_m)
@@ -357,10 +360,11 @@ def build_epoch_data(s: Scenario) -> EpochData:
     apply_restrict(used, t, const.names, s.restrict)
     bias = fault_biases(s.faults, t, const.names)
     noise = make_noise(s.noise, s.sigma_m, mixture_eps=s.mixture_eps,
-                       mixture_scale=s.mixture_scale, student_nu=s.student_nu)
+                       mixture_scale=s.mixture_scale, student_nu=s.student_nu,
+                       corr_s=s.noise_corr_s)
     ss = np.random.SeedSequence(int(s.seed))
     noise_ss, clock_ss, baro_ss = ss.spawn(3)
-    eps = noise.sample(np.random.default_rng(noise_ss), rng_m.shape)
+    eps = noise.sample(np.random.default_rng(noise_ss), rng_m.shape, t_s=t)
     clk0 = np.random.default_rng(clock_ss).uniform(-3e5, 3e5, len(systems))
     clock = clk0[None, :] + s.clock_drift_mps * t[:, None]
     pr = rng_m + clock @ cc.T + eps + bias

@@ -281,6 +281,11 @@ def test_session_controls_drive_figures_and_scene(session):
     # plotly handle carries the new figure
     doc = json.loads(s.plot_handles["detection"]._plotly_json_str)
     np.testing.assert_array_equal(_decode(doc["data"][0]["y"]), stat1)
+    s.noise_corr.value = 120.0  # time-correlated noise: same sigma, new draws
+    _settle(s)
+    assert s.result.scenario.noise_corr_s == 120.0
+    assert not np.allclose(stat1, np.array(s.figures["detection"].data[0]["y"]),
+                           equal_nan=True)
 
 
 def test_going_back_to_a_setting_reuses_the_cached_run(session, monkeypatch):

@@ -7,7 +7,7 @@ import pytest
 from scipy import integrate, stats
 
 from raimcore.faults import Fault, fault_biases, parse_fault
-from raimcore.noise import make_noise
+from raimcore.noise import fit_gauss_markov, gauss_markov_unit, make_noise
 from raimcore.trajectories import flight_profile, static, straight_line
 
 
@@ -38,6 +38,71 @@ def test_noise_bad_parameters_named():
         make_noise("gaussian", 0.0)
     with pytest.raises(ValueError, match="mixture_eps"):
         make_noise("mixture", 1.0, mixture_eps=1.5)
+
+
+@pytest.mark.parametrize("kind", ["gaussian", "mixture", "student-t"])
+def test_correlated_noise_keeps_the_marginal_and_has_the_gauss_markov_correlation(kind):
+    corr_s, dt = 20.0, 5.0
+    model = make_noise(kind, 2.0, corr_s=corr_s)
+    t = np.arange(12) * dt
+    x = model.sample(np.random.default_rng(1), (6000, 12, 4), t_s=t)
+    # One epoch across independent sequences: the white model's own law (KS, as above).
+    grid = np.linspace(-80, 80, 32001)
+    cdf = np.cumsum(np.exp(model.logpdf(grid))) * (grid[1] - grid[0])
+    for k in (0, 11):
+        assert stats.kstest(x[:, k].ravel(), lambda q: np.interp(q, grid, cdf)).pvalue > 1e-3
+    # The copula's normal scores have lag-k correlation exp(-k dt / corr_s): Fisher z test.
+    z = stats.norm.ppf(np.clip(np.interp(x, grid, cdf), 1e-12, 1 - 1e-12))
+    n = z[:, 0].size
+    for lag in (1, 3):
+        r = np.corrcoef(z[:, 5].ravel(), z[:, 5 + lag].ravel())[0, 1]
+        expect = math.exp(-lag * dt / corr_s)
+        assert abs(np.arctanh(r) - np.arctanh(expect)) * math.sqrt(n - 3) < 4.0
+
+
+def test_gauss_markov_unequal_steps_and_white_default():
+    rng_a, rng_b = np.random.default_rng(3), np.random.default_rng(3)
+    t = np.array([0.0, 1.0, 2.0, 3.0])
+    fast = gauss_markov_unit(rng_a, (2, 4, 3), t, 10.0)      # equal steps: filter path
+    t_jitter = t + np.array([0.0, 0.0, 0.0, 1e-9])
+    slow = gauss_markov_unit(rng_b, (2, 4, 3), t_jitter, 10.0)  # unequal: loop path
+    assert np.allclose(fast, slow, atol=1e-8)
+    # A gap of many correlation times makes the next epoch (almost) independent.
+    u = gauss_markov_unit(np.random.default_rng(4), (20000, 2, 1), [0.0, 1000.0], 10.0)
+    assert abs(np.corrcoef(u[:, 0, 0], u[:, 1, 0])[0, 1]) < 0.05
+    # corr_s = 0 draws exactly the white noise of before (seeded scenarios unchanged).
+    white = make_noise("student-t", 2.0).sample(np.random.default_rng(5), (7, 3))
+    assert np.array_equal(white, 2.0 * np.random.default_rng(5).standard_t(3.0, (7, 3)))
+
+
+def test_fit_gauss_markov_recovers_scale_and_correlation_time():
+    t = np.arange(3000) * 30.0
+    x = make_noise("gaussian", 1.5, corr_s=60.0).sample(np.random.default_rng(7), (3000, 12),
+                                                          t_s=t)
+    x[100:200, :4] = np.nan  # tracking gaps
+    fit = fit_gauss_markov(x, t)
+    assert fit.dt_s == 30.0 and fit.n_pairs < 2999 * 12
+    assert abs(fit.sigma_m / 1.5 - 1) < 0.05 and abs(fit.std_m / 1.5 - 1) < 0.05
+    assert abs(fit.rho - math.exp(-0.5)) < 0.02
+    assert abs(fit.corr_s / 60.0 - 1) < 0.06
+    white = fit_gauss_markov(np.random.default_rng(8).standard_normal((500, 8)),
+                             np.arange(500.0))
+    assert abs(white.rho) < 0.03 and white.corr_s < 0.5
+    # A time gap (a missing epoch) breaks the pair instead of counting it as one step.
+    t_gap = np.delete(np.arange(11.0), 5)
+    assert fit_gauss_markov(np.ones((10, 2)), t_gap).n_pairs == 16
+    with pytest.raises(ValueError, match="errors must be"):
+        fit_gauss_markov(np.ones((5, 2)), np.arange(4.0))
+
+
+def test_correlated_noise_bad_input_named():
+    with pytest.raises(ValueError, match="noise_corr_s"):
+        make_noise("gaussian", 1.0, corr_s=-1.0)
+    model = make_noise("gaussian", 1.0, corr_s=30.0)
+    with pytest.raises(ValueError, match="needs the epoch times t_s"):
+        model.sample(np.random.default_rng(0), (10, 3))
+    with pytest.raises(ValueError, match="one time per epoch"):
+        model.sample(np.random.default_rng(0), (10, 3), t_s=np.arange(9.0))
 
 
 def test_step_and_ramp_biases():

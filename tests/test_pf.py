@@ -211,6 +211,47 @@ def test_fault_free_alarm_rate_matches_calibrated_tau():
     assert stats.binomtest(k, n, 0.05).pvalue > 1e-3, (k, n)
 
 
+@pytest.mark.slow
+def test_time_correlated_noise_needs_a_threshold_calibrated_on_it():
+    """seed002's Student-t noise with a 60 s correlation time: the window sums of LLRs
+    spread much more than under white noise. tau calibrated on the correlated model holds
+    p_fa_window = 5 % (binomial test, one window per independent run); the white-noise tau
+    does not (the mismatch behind PF-LLR's false alarms on real recordings)."""
+    d = build_epoch_data(load_scenario("seed002", faults=[], noise_corr_s=60.0))
+    white = build_epoch_data(load_scenario("seed002", faults=[])).noise
+    u = d.used[0]
+    sv, rx, sys_idx = d.pos_sv_ecef_m[0][u], d.pos_rx_true_ecef_m[0], d.sys_idx[u]
+    model = pf.ProcessModel()
+    cfg = dict(n_particles=100, window=30, burn_in=30, p_fa_window=0.05)
+    tau_corr = pf.calibrate_tau(sv, rx, sys_idx, 1, d.noise, model, n_runs=64, n_armed=60,
+                                rng=np.random.default_rng(100), **cfg).tau
+    tau_white = pf.calibrate_tau(sv, rx, sys_idx, 1, white, model, n_runs=64, n_armed=60,
+                                 rng=np.random.default_rng(100), **cfg).tau
+    assert tau_corr > 1.5 * tau_white
+    test = pf.calibrate_tau(sv, rx, sys_idx, 1, d.noise, model, n_runs=400, n_armed=1,
+                            rng=np.random.default_rng(200), **cfg)
+    last = test.beta[:, -1]  # one window per run: independent samples
+    k = int(np.sum(last > tau_corr))
+    assert stats.binomtest(k, last.size, 0.05).pvalue > 1e-3, k
+    k_white = int(np.sum(last > tau_white))
+    assert stats.binomtest(k_white, last.size, 0.05, alternative="greater").pvalue < 1e-6
+
+
+def test_calibration_runs_at_the_scenario_epoch_interval():
+    """The calibration filters its runs at the scenario's step (process noise and noise
+    correlation depend on it), and the step is part of the cache key."""
+    d = build_epoch_data(load_scenario("seed002", faults=[], duration_s=3))
+    u = d.used[0]
+    args = (d.pos_sv_ecef_m[0][u], d.pos_rx_true_ecef_m[0], d.sys_idx[u], 1, d.noise,
+            pf.ProcessModel())
+    cfg = dict(n_particles=50, window=5, burn_in=5, p_fa_window=0.05, n_runs=4, n_armed=5)
+    b1 = pf.calibrate_tau(*args, rng=np.random.default_rng(1), dt_s=1.0, **cfg).beta
+    b30 = pf.calibrate_tau(*args, rng=np.random.default_rng(1), dt_s=30.0, **cfg).beta
+    assert not np.allclose(b1, b30)
+    with pytest.raises(ValueError, match="dt_s"):
+        pf.calibrate_tau(*args, rng=np.random.default_rng(1), dt_s=0.0, **cfg)
+
+
 def test_chunked_likelihood_equals_one_batch(monkeypatch):
     """Agreement: the likelihood of a big bank computed in chunks of filters equals the
     one-batch computation and a per-filter loop."""

@@ -166,3 +166,30 @@ def test_batched_spp_equals_a_per_epoch_loop(esbc):
                                   codes={k: v[e:e + 1] for k, v in obs.codes.items()})
         np.testing.assert_allclose(solve(correct(one, nav)).pos_ecef_m[0], batched[e],
                                    atol=1e-6)
+
+
+@pytest.mark.slow
+def test_real_errors_are_time_correlated_and_pf_llr_needs_that_in_its_threshold(esbc):
+    """ESBC's real pseudorange errors (against the station position) are strongly
+    correlated over 30 s. PF-LLR calibrated on white noise false-alarms at most armed
+    epochs; calibrated with the measured correlation time it holds, and a slow ramp is
+    still caught and isolated."""
+    from raimcore.recording import error_statistics
+    from raimcore.scenario import build_epoch_data
+
+    s = recording_scenario(*esbc, algorithm="pf-llr")
+    data = build_epoch_data(s)
+    fit = error_statistics(data)
+    print(f"ESBC errors: sigma {fit.sigma_m:.2f} m, rho {fit.rho:.2f} over {fit.dt_s:g} s, "
+          f"corr {fit.corr_s:.0f} s")
+    assert 0.2 < fit.sigma_m < 2.0 and fit.rho > 0.5 and fit.dt_s == 30.0
+    assert any(n.startswith("measured pseudorange errors") for n in data.notes)
+    white = run_scenario(s)
+    corr = run_scenario(s.replace(noise_corr_s=round(fit.corr_s)))
+    assert corr.table["threshold"][-1] > white.table["threshold"][-1]
+    assert white.summary["false_alarm_rate"] > 0.3
+    assert corr.summary["false_alarm_rate"] <= 0.05
+    ramp = run_scenario(s.replace(noise_corr_s=round(fit.corr_s)).with_faults(
+        Fault("G05", "ramp", t0_s=3600.0, rate_mps=0.5)))
+    assert ramp.summary["first_alarm_t_s"] <= 3600.0 + 120.0
+    assert ramp.summary["correct_isolation_rate"] >= 0.9

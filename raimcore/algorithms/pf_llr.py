@@ -83,8 +83,11 @@ def _threshold(data: EpochData, model: ProcessModel, n: int, window: int, burn_i
                      len(data.systems), data.noise)
     rx = np.nan_to_num(fix.pos_ecef_m[0])
     sv, sys_idx = data.pos_sv_ecef_m[ref][u], data.sys_idx[u]
+    steps = np.diff(np.asarray(data.t_s, dtype=float))
+    steps = steps[steps > 0]
+    dt = float(np.median(steps)) if steps.size else 1.0  # the scenario's epoch interval
     config = dict(n_particles=n, window=window, burn_in=burn_in, p_fa_window=p_fa,
-                  n_runs=CALIBRATION_RUNS, n_armed=CALIBRATION_ARMED_EPOCHS)
+                  n_runs=CALIBRATION_RUNS, n_armed=CALIBRATION_ARMED_EPOCHS, dt_s=dt)
     key = calibration_key(sv, rx, sys_idx, data.noise, model, **config)
 
     def compute():
