@@ -63,7 +63,7 @@ def _transition(model: ProcessModel, dt_s: float):
     return f, np.diag(q)
 
 
-def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m: float,
+def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
             model: ProcessModel, p_fa: float, *, exclude: bool,
             init_inflate: float = 3.0) -> EkfRun:
     """Run the EKF and its innovation test over every epoch.
@@ -75,7 +75,8 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m: float,
     used : (E, S) bool.
     t_s : (E,) epoch times (s).
     sys_idx : (S,) system index; n_sys : number of clocks (``model.n_clk``).
-    sigma_m : measurement standard deviation the filter assumes (m).
+    sigma_m : measurement standard deviation the filter assumes (m): a number, or (E, S)
+        per satellite (a recording's elevation model); ``R = diag(sigma_m^2)``.
     model : process model.
     p_fa : false-alarm probability per epoch of the chi-square test.
     exclude : on an alarm, leave the satellite with the largest normalised innovation out
@@ -92,6 +93,7 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m: float,
     used = np.asarray(used, dtype=bool)
     r_n, e_n, s_n = pr.shape
     d = model.dim
+    var = np.broadcast_to(np.asarray(sigma_m, dtype=float) ** 2, (e_n, s_n))
     cc = clock_columns(sys_idx, n_sys)
     n_states, available = availability(used, sys_idx, n_sys)
     dof = used.sum(-1)
@@ -102,10 +104,10 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m: float,
     worst = np.full((r_n, e_n), -1)
     excluded = np.zeros((r_n, e_n, s_n), dtype=bool)
     k0 = -1
-    w0 = 1.0 / sigma_m**2
     for k in np.flatnonzero(available):
         fix = wls(np.broadcast_to(sv[k], (r_n, s_n, 3)), pr[:, k],
-                  np.broadcast_to(np.where(used[k], w0, 0.0), (r_n, s_n)), sys_idx, n_sys)
+                  np.broadcast_to(np.where(used[k], 1.0 / var[k], 0.0), (r_n, s_n)),
+                  sys_idx, n_sys)
         if fix.available.all():
             k0 = int(k)
             break
@@ -140,7 +142,7 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m: float,
         u = used[k][None, :] & np.ones((r_n, 1), bool)
         nu = np.where(u, np.nan_to_num(pr[:, k]) - rng_m - x[:, model.clk0:] @ cc.T, 0.0)
         h = np.where(u[..., None], h, 0.0)
-        s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.eye(s_n) * sigma_m**2
+        s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.diag(var[k])
         s_inv = np.linalg.inv(s_mat)
         nis[:, k] = np.einsum("rs,rst,rt->r", nu, s_inv, nu)
         ni = np.abs(nu) / np.sqrt(np.diagonal(s_mat, axis1=1, axis2=2))
@@ -154,13 +156,13 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m: float,
             u = u & ~drop
             nu = np.where(u, nu, 0.0)
             h = np.where(u[..., None], h, 0.0)
-            s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.eye(s_n) * sigma_m**2
+            s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.diag(var[k])
             s_inv = np.linalg.inv(s_mat)
         gain = p @ np.swapaxes(h, -1, -2) @ s_inv
         x = x + np.einsum("rds,rs->rd", gain, nu)
         ikh = eye - gain @ h
         # Joseph form keeps P symmetric positive definite.
-        p = ikh @ p @ np.swapaxes(ikh, -1, -2) + sigma_m**2 * gain @ np.swapaxes(gain, -1, -2)
+        p = ikh @ p @ np.swapaxes(ikh, -1, -2) + (gain * var[k]) @ np.swapaxes(gain, -1, -2)
         est[:, k] = x
     alarm = available[None] & (nis > threshold[None])
     return EkfRun(est, nis, threshold, norm_innov, alarm, worst, excluded, available)

@@ -28,7 +28,7 @@ from scipy import special
 from ._validate import check_choice, check_positive, check_probability
 
 __all__ = ["Gaussian", "GaussianMixture", "StudentT", "make_noise", "gauss_markov_unit",
-           "GaussMarkovFit", "fit_gauss_markov", "NOISE_KINDS"]
+           "GaussMarkovFit", "fit_gauss_markov", "Scaled", "scaled", "NOISE_KINDS"]
 
 NOISE_KINDS = ("gaussian", "mixture", "student-t")
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -195,6 +195,62 @@ class StudentT:
         c = (special.gammaln((nu + 1) / 2) - special.gammaln(nu / 2)
              - 0.5 * math.log(nu * math.pi) - math.log(s))
         return c - 0.5 * (nu + 1) * np.log1p(z * z / nu)
+
+
+class Scaled:
+    """A noise model with a per-satellite scale: ``e_i = k_i e`` with ``e`` from ``base``.
+
+    On a recording the snapshot algorithms assume ``sigma_i = sigma_m k(el_i)`` (the
+    elevation model); a filter's likelihood uses this wrapper to agree with them:
+    ``logpdf(x) = base.logpdf(x / k) - ln k``, broadcast along the last (satellite) axis.
+    ``sigma_m`` and ``corr_s`` stay the base model's.
+    """
+
+    def __init__(self, base, scale):
+        self.base = base
+        self.scale = np.asarray(scale, dtype=float)
+        self._log_scale = np.log(self.scale)
+
+    @property
+    def kind(self) -> str:
+        return self.base.kind
+
+    @property
+    def sigma_m(self) -> float:
+        return self.base.sigma_m
+
+    @property
+    def corr_s(self) -> float:
+        return self.base.corr_s
+
+    @property
+    def std_m(self):
+        """Per-satellite standard deviation (m), shape of ``scale``."""
+        return self.base.std_m * self.scale
+
+    def sample(self, rng: np.random.Generator, shape, t_s=None) -> np.ndarray:
+        return self.base.sample(rng, shape, t_s=t_s) * self.scale
+
+    def logpdf(self, x_m) -> np.ndarray:
+        return self.base.logpdf(np.asarray(x_m) / self.scale) - self._log_scale
+
+    def __repr__(self) -> str:  # stable, short: it is part of PF-LLR's calibration key
+        k = ",".join(f"{v:.2f}" for v in self.scale.reshape(-1))
+        return f"Scaled({self.base!r}, scale=[{k}])"
+
+
+def scaled(noise, scale):
+    """``noise`` with per-satellite ``scale`` (:class:`Scaled`), or ``noise`` itself when
+    ``scale`` is None or all ones (simulated scenarios: nothing changes)."""
+    if scale is None:
+        return noise
+    k = np.asarray(scale, dtype=float)
+    if np.all(k == 1.0):
+        return noise
+    if not np.all(np.isfinite(k) & (k > 0)):
+        raise ValueError("noise scale must be finite and > 0 for every satellite")
+    return Scaled(noise.base if isinstance(noise, Scaled) else noise,
+                  k * (noise.scale if isinstance(noise, Scaled) else 1.0))
 
 
 def make_noise(kind: str, sigma_m: float, *, mixture_eps: float = 0.1,

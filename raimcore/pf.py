@@ -32,6 +32,7 @@ from scipy.special import logsumexp
 
 from ._validate import check_choice, check_positive
 from .geometry import ecef_to_geodetic, enu_rotation
+from .noise import scaled
 
 __all__ = ["PROCESS_MODELS", "ProcessModel", "ParticleBank", "predict", "log_likelihood",
            "normalise_log_weights", "effective_sample_size", "systematic_resample",
@@ -392,10 +393,12 @@ class BankRun:
     armed: np.ndarray
 
 
-def _noise_weight(noise) -> float:
-    """Least-squares weight 1/std^2 (1/m^2) of a noise model (scale if the std is infinite)."""
-    std = noise.std_m
-    return 1.0 / (std * std if math.isfinite(std) else noise.sigma_m**2)
+def _noise_weight(noise):
+    """Least-squares weight 1/std^2 (1/m^2) of a noise model (scale if the std is
+    infinite); per satellite for a :class:`~raimcore.noise.Scaled` model."""
+    std = np.asarray(noise.std_m, dtype=float)
+    scale = getattr(noise, "scale", 1.0)
+    return 1.0 / np.where(np.isfinite(std), std * std, (noise.sigma_m * scale) ** 2)
 
 
 def robust_fix(pos_sv_ecef_m, pr_m, used, sys_idx, n_sys: int, noise, n_iter: int = 6):
@@ -453,7 +456,7 @@ def robust_fix(pos_sv_ecef_m, pr_m, used, sys_idx, n_sys: int, noise, n_iter: in
 
 def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
                  model: ProcessModel, *, n_particles: int, window: int, burn_in: int,
-                 rng: np.random.Generator) -> BankRun:
+                 rng: np.random.Generator, scale=None) -> BankRun:
     """Run the bank of s + 1 SIR filters and the windowed LLR test (spec section 3).
 
     Parameters
@@ -468,6 +471,8 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     n_particles, window, burn_in : N, W (epochs) and the epochs after the first fix whose
         LLRs are not accumulated (the cloud converging from the least-squares start).
     rng : random generator.
+    scale : optional (E, S) per-satellite factor on the noise (the elevation model of a
+        recording, :class:`~raimcore.noise.Scaled`); None: the same noise for all.
 
     Returns
     -------
@@ -487,9 +492,15 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     llr = np.zeros((r_n, e_n, s_n))
     # Filter masks: main = all, auxiliary j = all but j.
     drop = np.vstack([np.ones(s_n, dtype=bool), ~np.eye(s_n, dtype=bool)])  # (Q, S)
+    if scale is not None:
+        scale = np.where(used, np.broadcast_to(np.asarray(scale, dtype=float), used.shape), 1.0)
+
+    def noise_at(k):
+        return noise if scale is None else scaled(noise, scale[k])
+
     k0 = -1
     for k in np.flatnonzero(available):
-        fix = robust_fix(sv[k], pr[:, k], used[k], sys_idx, n_sys, noise)
+        fix = robust_fix(sv[k], pr[:, k], used[k], sys_idx, n_sys, noise_at(k))
         if fix.available.all():
             k0 = int(k)
             break
@@ -504,7 +515,7 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
         later = np.flatnonzero(available & (t_s >= t_s[k0] + 5.0))
         if later.size:
             k1 = int(later[0])
-            fix1 = robust_fix(sv[k1], pr[:, k1], used[k1], sys_idx, n_sys, noise)
+            fix1 = robust_fix(sv[k1], pr[:, k1], used[k1], sys_idx, n_sys, noise_at(k1))
             dt = t_s[k1] - t_s[k0]
             vel0 = np.nan_to_num((fix1.pos_ecef_m - fix.pos_ecef_m) / dt)
             vel_sd = 2.0 * math.sqrt(np.nanmax(np.trace(fix.cov_enu[:, :3, :3], axis1=1,
@@ -529,7 +540,7 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
         q_scale_vel = 1.0 + (boost_vel - 1.0) * (1.0 - frac) ** 2
         mask = drop & used[k][None, :] if available[k] else np.zeros((q_n, s_n), bool)
         res = bank.step(t_s[k] - t_s[k - 1], sv[k][None, None], pr[:, k][:, None, :],
-                        mask[None], sys_idx, noise, rng, q_scale, q_scale_vel)
+                        mask[None], sys_idx, noise_at(k), rng, q_scale, q_scale_vel)
         estimate[:, k] = res.estimate
         if available[k]:
             n_eff[:, k] = res.n_eff
@@ -577,7 +588,8 @@ class Calibration:
 def calibrate_tau(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, n_sys: int, noise,
                   model: ProcessModel, *, n_particles: int, window: int, burn_in: int,
                   p_fa_window: float, n_runs: int, n_armed: int,
-                  rng: np.random.Generator, dt_s: float = 1.0) -> Calibration:
+                  rng: np.random.Generator, dt_s: float = 1.0,
+                  scale=None) -> Calibration:
     """Calibrate ``tau`` by fault-free Monte Carlo runs of the same bank.
 
     The geometry is frozen (satellites ``(S, 3)`` and receiver ``(3,)`` at one epoch: the
@@ -587,13 +599,15 @@ def calibrate_tau(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, n_sys: int, noise,
     at the scenario's epoch interval ``dt_s`` (the process noise and a time-correlated
     noise model, ``noise.corr_s``, both depend on it); ``tau`` comes from the pooled
     ``beta(k)`` of the ``n_armed`` armed epochs of every run
-    (:func:`threshold_from_samples`).
+    (:func:`threshold_from_samples`). ``scale`` (S,), optional: per-satellite noise factor
+    (elevation model), used both to draw the noise and in the filters' likelihood.
     """
     sv = np.asarray(pos_sv_ecef_m, dtype=float)
     s_n = sv.shape[0]
     e_n = 1 + burn_in + window + n_armed
     t = np.arange(e_n, dtype=float) * check_positive("dt_s", dt_s)
     rng_m = np.linalg.norm(sv - np.asarray(pos_rx_ecef_m, dtype=float), axis=-1)
+    noise = scaled(noise, scale)
     pr = rng_m + noise.sample(rng, (n_runs, e_n, s_n), t_s=t)
     run = run_llr_bank(np.broadcast_to(sv, (e_n, s_n, 3)), pr, np.ones((e_n, s_n), bool),
                        t, sys_idx, n_sys, noise, model,

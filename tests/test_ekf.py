@@ -64,3 +64,29 @@ def test_ekf_constant_velocity_tracks_a_moving_receiver():
 def test_ekf_rejects_bad_model():
     with pytest.raises(ValueError, match="model must be one of"):
         run_scenario(load_scenario("seed002", algorithm="ekf", model="jerk"))
+
+
+def test_per_satellite_sigma_equals_scalar_when_uniform_and_holds_p_fa_when_not():
+    """R = diag(sigma_i^2): a uniform array gives the scalar filter exactly; with unequal
+    noise levels (as a recording's elevation model), the per-satellite R keeps NIS at its
+    chi-square false-alarm rate where one common sigma does not."""
+    d, pr = _runs("gaussian", 20, 3)
+    model = ProcessModel("static", 1, q_pos_mps=0.0, q_clk_mps=0.0)
+    sig = d.noise.std_m
+    args = (d.pos_sv_ecef_m, None, d.used, d.t_s, d.sys_idx, 1)
+    a = run_ekf(*args[:1], pr, *args[2:], sig, model, 0.01, exclude=False)
+    b = run_ekf(*args[:1], pr, *args[2:], np.full(d.pr_m.shape, sig), model, 0.01,
+                exclude=False)
+    np.testing.assert_allclose(a.nis, b.nis, rtol=1e-12)
+    k_sat = np.array([1.0, 1.0, 2.0, 2.0, 4.0, 4.0])
+    rng = np.random.default_rng(4)
+    rng_m = np.linalg.norm(d.pos_sv_ecef_m - d.pos_rx_true_ecef_m[:, None], axis=-1)
+    pr_h = rng_m[None] + 1234.5 + sig * k_sat * rng.standard_normal((20,) + rng_m.shape)
+    per_sat = run_ekf(*args[:1], pr_h, *args[2:], sig * np.broadcast_to(k_sat, d.pr_m.shape),
+                      model, 0.01, exclude=False)
+    common = run_ekf(*args[:1], pr_h, *args[2:], sig, model, 0.01, exclude=False)
+    nis_ok, nis_bad = per_sat.nis[:, 1:], common.nis[:, 1:]
+    k_ok = int(np.sum(nis_ok > per_sat.threshold[1:]))
+    assert stats.binomtest(k_ok, nis_ok.size, 0.01).pvalue > 1e-3, k_ok
+    k_bad = int(np.sum(nis_bad > common.threshold[1:]))
+    assert k_bad > 10 * k_ok + 50

@@ -7,7 +7,7 @@ import pytest
 from scipy import integrate, stats
 
 from raimcore.faults import Fault, fault_biases, parse_fault
-from raimcore.noise import fit_gauss_markov, gauss_markov_unit, make_noise
+from raimcore.noise import Scaled, fit_gauss_markov, gauss_markov_unit, make_noise, scaled
 from raimcore.trajectories import flight_profile, static, straight_line
 
 
@@ -93,6 +93,23 @@ def test_fit_gauss_markov_recovers_scale_and_correlation_time():
     assert fit_gauss_markov(np.ones((10, 2)), t_gap).n_pairs == 16
     with pytest.raises(ValueError, match="errors must be"):
         fit_gauss_markov(np.ones((5, 2)), np.arange(4.0))
+
+
+def test_per_satellite_scaled_noise():
+    base = make_noise("gaussian", 1.5)
+    k = np.array([1.0, 2.0, 4.0])
+    m = scaled(base, k)
+    assert isinstance(m, Scaled) and m.sigma_m == 1.5 and m.kind == "gaussian"
+    x = np.linspace(-10, 10, 7)[:, None] * np.ones(3)
+    np.testing.assert_allclose(m.logpdf(x), stats.norm.logpdf(x, scale=1.5 * k))
+    np.testing.assert_allclose(m.std_m, 1.5 * k)
+    draws = m.sample(np.random.default_rng(0), (200_000, 3))
+    np.testing.assert_allclose(draws.std(0), 1.5 * k, rtol=0.01)
+    assert scaled(base, None) is base and scaled(base, np.ones(3)) is base
+    np.testing.assert_allclose(scaled(m, k).scale, k * k)  # scales compose, no nesting
+    assert "scale=[1.00,2.00,4.00]" in repr(m)
+    with pytest.raises(ValueError, match="noise scale"):
+        scaled(base, [1.0, 0.0])
 
 
 def test_correlated_noise_bad_input_named():

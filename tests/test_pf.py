@@ -252,6 +252,26 @@ def test_calibration_runs_at_the_scenario_epoch_interval():
         pf.calibrate_tau(*args, rng=np.random.default_rng(1), dt_s=0.0, **cfg)
 
 
+def test_per_satellite_noise_scale_in_the_likelihood():
+    """A Scaled noise model weighs each satellite by its own sigma (a recording's elevation
+    model): with a uniform factor 2 it is exactly the noise model with twice the sigma;
+    simulated scenarios have no scale at all."""
+    from raimcore.algorithms.pf_llr import noise_scale
+    from raimcore.noise import make_noise, scaled
+
+    d = build_epoch_data(load_scenario("seed002", duration_s=2))
+    model = pf.ProcessModel("static", 1)
+    x = np.random.default_rng(0).normal(size=(50, 4)) * 5.0
+    x[:, :3] += d.pos_rx_true_ecef_m[0]
+    base = make_noise("gaussian", 3.0)
+    a = pf.log_likelihood(x, d.pos_sv_ecef_m[0], d.pr_m[0], d.used[0], d.sys_idx,
+                          scaled(base, np.full(6, 2.0)), model)
+    b = pf.log_likelihood(x, d.pos_sv_ecef_m[0], d.pr_m[0], d.used[0], d.sys_idx,
+                          make_noise("gaussian", 6.0), model)
+    np.testing.assert_allclose(a, b, rtol=1e-12)
+    assert noise_scale(d) is None
+
+
 def test_chunked_likelihood_equals_one_batch(monkeypatch):
     """Agreement: the likelihood of a big bank computed in chunks of filters equals the
     one-batch computation and a per-filter loop."""

@@ -24,7 +24,7 @@ from .base import (
     EpochData,
     register,
 )
-from .pf_llr import process_model
+from .pf_llr import noise_scale, process_model
 
 SUMMARY = (
     "A Kalman filter follows the receiver position and clock, assuming Gaussian noise. "
@@ -38,7 +38,7 @@ SUMMARY = (
 
 EQUATIONS = r"""
 - Predict $\hat x_k^- = F \hat x_{k-1}$, $P_k^- = F P_{k-1} F^T + Q$
-- Innovation $\nu = \rho - h(\hat x_k^-)$, $S = H P_k^- H^T + \sigma^2 I$
+- Innovation $\nu = \rho - h(\hat x_k^-)$, $S = H P_k^- H^T + R$, $R = \mathrm{diag}(\sigma_i^2)$
 - Test $\mathrm{NIS} = \nu^T S^{-1} \nu \sim \chi^2_m$, alarm when
   $\mathrm{NIS} > \chi^2_{m}{}^{-1}(1 - P_{fa})$
 - Exclude $\hat\jmath = \arg\max_i |\nu_i| / \sqrt{S_{ii}}$, then
@@ -52,6 +52,9 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     model = process_model(options, len(data.systems))
     std = data.noise.std_m
     sigma = std if math.isfinite(std) else data.noise.sigma_m
+    scale = noise_scale(data)  # a recording's elevation model, as the snapshot tests use
+    if scale is not None:
+        sigma = sigma * scale
     args = (data.pos_sv_ecef_m, data.pr_m[None], data.used, data.t_s, data.sys_idx,
             len(data.systems), sigma, model, data.p_fa)
     plain = run_ekf(*args, exclude=False)

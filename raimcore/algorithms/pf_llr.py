@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validate import check_choice, check_int, check_positive, check_probability
+from ..noise import scaled
 from ..pf import (
     PROCESS_MODELS,
     ProcessModel,
@@ -75,12 +76,24 @@ def process_model(options: dict, n_clk: int) -> ProcessModel:
         q_clk_mps=check_positive("q_clk_mps", options.get("q_clk_mps", 0.1), allow_zero=True))
 
 
+def noise_scale(data: EpochData):
+    """Per-satellite factor ``data.sigma_m / noise.sigma_m`` (E, S): the elevation model of
+    a recording, so that the filters weigh satellites as the snapshot algorithms do; None
+    when it is 1 everywhere (simulated scenarios)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.asarray(data.sigma_m, dtype=float) / data.noise.sigma_m
+    k = np.where(np.isfinite(k) & (k > 0), k, 1.0)
+    return None if np.all(k == 1.0) else k
+
+
 def _threshold(data: EpochData, model: ProcessModel, n: int, window: int, burn_in: int,
-               p_fa: float, cache: str, ref: int) -> float:
+               p_fa: float, cache: str, ref: int, scale=None) -> float:
     """Calibrated tau for the satellites and geometry of epoch ``ref`` (see module doc)."""
     u = data.used[ref]
     fix = robust_fix(data.pos_sv_ecef_m[ref], data.pr_m[ref][None], u, data.sys_idx,
-                     len(data.systems), data.noise)
+                     len(data.systems), scaled(data.noise, None if scale is None
+                                               else scale[ref]))
+    noise = scaled(data.noise, None if scale is None else scale[ref][u])
     rx = np.nan_to_num(fix.pos_ecef_m[0])
     sv, sys_idx = data.pos_sv_ecef_m[ref][u], data.sys_idx[u]
     steps = np.diff(np.asarray(data.t_s, dtype=float))
@@ -88,11 +101,11 @@ def _threshold(data: EpochData, model: ProcessModel, n: int, window: int, burn_i
     dt = float(np.median(steps)) if steps.size else 1.0  # the scenario's epoch interval
     config = dict(n_particles=n, window=window, burn_in=burn_in, p_fa_window=p_fa,
                   n_runs=CALIBRATION_RUNS, n_armed=CALIBRATION_ARMED_EPOCHS, dt_s=dt)
-    key = calibration_key(sv, rx, sys_idx, data.noise, model, **config)
+    key = calibration_key(sv, rx, sys_idx, noise, model, **config)
 
     def compute():
         rng = np.random.default_rng(CALIBRATION_SEED)
-        return calibrate_tau(sv, rx, sys_idx, len(data.systems), data.noise, model, rng=rng,
+        return calibrate_tau(sv, rx, sys_idx, len(data.systems), noise, model, rng=rng,
                              **config).tau
 
     return cached_tau(key, compute, cache=cache)
@@ -132,16 +145,17 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     tau_opt = _parse_tau(options.get("tau", "auto"))
     model = process_model(options, len(data.systems))
     e_n, s_n = data.pr_m.shape
+    scale = noise_scale(data)
     bank = run_llr_bank(data.pos_sv_ecef_m, data.pr_m[None], data.used, data.t_s,
                         data.sys_idx, len(data.systems), data.noise, model, n_particles=n,
-                        window=window, burn_in=burn_in, rng=data.rng(0))
+                        window=window, burn_in=burn_in, rng=data.rng(0), scale=scale)
     armed = bank.armed
     tau = np.nan
     if tau_opt is not None:
         tau = tau_opt
     elif armed.any():
         tau = _threshold(data, model, n, window, burn_in, p_fa, cache,
-                         int(np.flatnonzero(armed)[0]))
+                         int(np.flatnonzero(armed)[0]), scale)
     beta = bank.beta[0]
     alarm = armed & (beta > tau)
     faulty = np.where(alarm, bank.argmax[0], -1)
