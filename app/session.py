@@ -133,7 +133,7 @@ class Session:
                                               initial_value=s.algorithm)
             self.sigma = gui.add_slider("Noise sigma (m)", 0.5, 50.0, 0.5, s.sigma_m)
             self.noise_corr = gui.add_slider(
-                "Noise correlation (s)", 0.0, max(600.0, s.noise_corr_s), 5.0, s.noise_corr_s,
+                "Noise correlation (s)", 0.0, max(3600.0, s.noise_corr_s), 5.0, s.noise_corr_s,
                 hint="correlation time of the noise (first-order Gauss-Markov); 0 = white. "
                      "On a recording: the assumed correlation of the real errors")
             self.p_fa = gui.add_number("P_fa", s.p_fa, min=1e-9, max=0.5, step=1e-6)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -164,7 +165,9 @@ def format_summary(result) -> str:
         for f in s.faults) or "none"
     lines = [
         f"scenario {s.name}: algorithm {s.algorithm}, {sm['epochs']} epochs, "
-        f"sigma {s.sigma_m:g} m ({s.noise}), p_fa {s.p_fa:g}, faults: {faults}",
+        f"sigma {s.sigma_m:g} m ({s.noise}"
+        + (f", correlated over {s.noise_corr_s:g} s" if s.noise_corr_s > 0 else "")
+        + f"), p_fa {s.p_fa:g}, faults: {faults}",
         f"  unavailable epochs: {sm['unavailable_epochs']}; false-alarm rate on fault-free "
         f"epochs: {_pct(sm['false_alarm_rate'])}",
     ]
@@ -426,6 +429,9 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"raim: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `raim run ... | head`: the reader left, nothing to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     except OSError as exc:  # e.g. --out on a read-only disk: a message, not a traceback
         print(f"raim: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "),
               file=sys.stderr)

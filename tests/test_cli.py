@@ -47,6 +47,15 @@ def test_bad_out_path_is_refused_before_the_run(tmp_path, capsys):
     assert "is a folder" in capsys.readouterr().err
 
 
+def test_time_correlated_noise_from_the_command_line(capsys):
+    assert main(["run", "seed000-step", "--set", "noise_corr_s=30", "--set", "sigma_m=3"]) == 0
+    out = capsys.readouterr().out
+    assert "sigma 3 m (gaussian, correlated over 30 s)" in out
+    assert "correct isolation rate over faulted epochs: 100.0%" in out
+    assert main(["run", "seed000-step", "--set", "noise_corr_s=-1"]) == 2
+    assert "noise_corr_s must be a finite number >= 0" in capsys.readouterr().err
+
+
 def test_list_and_help(capsys):
     assert main(["list"]) == 0
     text = capsys.readouterr().out
