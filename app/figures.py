@@ -60,6 +60,8 @@ class RunView:
     mask_deg : elevation mask (deg).
     algorithm : label of the algorithm that produced the run.
     isolated_idx : (E,) int, index of the satellite the algorithm names, -1 for none.
+    extras : name -> (E, ...) array, every ``AlgorithmOutput.extras`` entry (e.g. the
+        particle cloud of ``pf-llr``).
     """
 
     table: Mapping[str, np.ndarray]
@@ -75,6 +77,7 @@ class RunView:
     mask_deg: float = 0.0
     algorithm: str = ""
     isolated_idx: np.ndarray | None = None
+    extras: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def t_s(self) -> np.ndarray:
@@ -390,6 +393,60 @@ def columns_figure(view: RunView, keys: list[str]) -> PanelFigure:
     layout = _base_layout("Algorithm outputs: " + ", ".join(keys), height=260,
                           shapes=_fault_windows(view))
     return PanelFigure("columns", "Algorithm outputs", data, layout, t_s=t)
+
+
+def particle_figure(view: RunView) -> PanelFigure:
+    """The main particle filter's cloud now (East/North offsets from the true position,
+    marker area by weight, colour by the Up offset), its weighted mean and the truth.
+
+    The axes are fixed over the run (the 98th percentile of the cloud's extent) so that
+    moving the time slider shows the cloud move and shrink, not the axes rescale.
+    """
+    enu = np.asarray(view.extras["particles_enu_m"], dtype=float)       # (E, K, 3)
+    w = np.asarray(view.extras.get("particle_weight",
+                                   np.full(enu.shape[:2], 1.0 / max(enu.shape[1], 1))))
+    n_e, k_n = enu.shape[:2]
+    ok = np.isfinite(enu).all(-1).all(-1)
+    if ok.any():
+        radius = np.nanpercentile(np.abs(enu[ok][..., :2]), 90, axis=1).max(-1)
+        half = float(max(np.percentile(radius, 98) * 1.6, 2.0))
+        u_lim = float(max(np.nanpercentile(np.abs(enu[ok][..., 2]), 98), 1.0))
+    else:
+        half, u_lim = 10.0, 10.0
+
+    def now(i: int) -> tuple[list[dict], dict]:
+        i = int(np.clip(i, 0, n_e - 1))
+        if not ok[i]:
+            return [], {"annotations": [{"xref": "paper", "yref": "paper", "x": 0.5,
+                                         "y": 0.5, "text": "no filter yet at this epoch",
+                                         "showarrow": False}]}
+        e, n, u = enu[i, :, 0], enu[i, :, 1], enu[i, :, 2]
+        wi = np.nan_to_num(w[i])
+        size = 4.0 + 14.0 * np.sqrt(wi * k_n / max(float((wi * k_n).max()), 1e-12))
+        mean = (wi[:, None] * enu[i]).sum(0) / max(wi.sum(), 1e-300)
+        traces = [
+            {"type": "scatter", "x": e, "y": n, "mode": "markers", "name": "particles",
+             "marker": {"size": size, "color": u, "colorscale": "RdBu", "cmin": -u_lim,
+                        "cmax": u_lim, "opacity": 0.6, "line": {"width": 0},
+                        "colorbar": {"title": {"text": "Up (m)"}, "thickness": 10,
+                                     "len": 0.8}},
+             "hovertemplate": "E %{x:.2f} m<br>N %{y:.2f} m<extra></extra>"},
+            {"type": "scatter", "x": [mean[0]], "y": [mean[1]], "mode": "markers",
+             "name": "estimate (weighted mean)",
+             "marker": {"symbol": "x", "size": 12, "color": "#1f5eea"}},
+            {"type": "scatter", "x": [0.0], "y": [0.0], "mode": "markers", "name": "truth",
+             "marker": {"symbol": "star", "size": 14, "color": "#2ca02c",
+                        "line": {"color": "white", "width": 1}}},
+        ]
+        return traces, {"annotations": []}
+
+    layout = _base_layout("Particle cloud of the main filter (now)", height=340,
+                          xaxis={"title": {"text": "East (m)"}, "range": [-half, half],
+                                 "zeroline": True},
+                          yaxis={"title": {"text": "North (m)"}, "range": [-half, half],
+                                 "zeroline": True, "scaleanchor": "x"})
+    return PanelFigure("particles", "Particle cloud", [], layout, dynamic=now,
+                       t_s=view.t_s, marker=False)
 
 
 def sky_figure(view: RunView) -> PanelFigure:

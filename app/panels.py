@@ -35,7 +35,8 @@ class PanelSpec:
     Attributes
     ----------
     key : unique key (also the GUI element's identity across recomputes).
-    needs : names that must all be present: table columns, or ``"per_sat:NAME"``.
+    needs : names that must all be present: table columns, ``"per_sat:NAME"`` or
+        ``"extras:NAME"``.
     any_of : names of which at least one must be present (empty: no condition).
     build : ``build(view) -> PanelFigure``.
     order : position in the panel list (smaller first).
@@ -62,8 +63,10 @@ def register_panel(spec: PanelSpec) -> PanelSpec:
 
 
 def available(view: RunView) -> set[str]:
-    """Names a run offers: its table columns and ``per_sat:NAME`` for each array."""
-    return set(view.table) | {f"per_sat:{k}" for k in view.per_sat}
+    """Names a run offers: its table columns, ``per_sat:NAME`` for each per-satellite
+    array and ``extras:NAME`` for each display array."""
+    return (set(view.table) | {f"per_sat:{k}" for k in view.per_sat}
+            | {f"extras:{k}" for k in view.extras})
 
 
 def _numeric_column(view: RunView, key: str) -> bool:
@@ -117,6 +120,8 @@ def panels_for(view: RunView, per_sat_key: str | None = None
 
 # Built-in panels.
 register_panel(PanelSpec("sky", figures.sky_figure, order=40))
+register_panel(PanelSpec("particles", figures.particle_figure,
+                         needs=("extras:particles_enu_m",), order=45))
 register_panel(PanelSpec("detection", figures.detection_figure,
                          needs=("statistic", "threshold"), order=10,
                          claims=("pd_theory", "alarm")))

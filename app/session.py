@@ -50,7 +50,7 @@ def run_view(result: ScenarioResult) -> RunView:
         excluded=np.asarray(out.excluded, dtype=bool),
         fault_bias_m=np.asarray(data.fault_bias_m), az_rad=data.az_rad, el_rad=data.el_rad,
         hal_m=s.hal_m, val_m=s.val_m, mask_deg=s.mask_deg, algorithm=spec.label,
-        isolated_idx=np.asarray(out.isolated, dtype=int))
+        isolated_idx=np.asarray(out.isolated, dtype=int), extras=dict(out.extras))
 
 
 def scene_run(result: ScenarioResult, view: RunView) -> SceneRun:
@@ -592,7 +592,8 @@ class Session:
 
         parts = []
         for k, fig in enumerate(self.figures.values()):
-            parts.append(pio.to_html(fig.to_plotly(None), full_html=False,
+            # At the current time: the sky plot's and the particle cloud's "now" included.
+            parts.append(pio.to_html(fig.to_plotly(self.i_epoch), full_html=False,
                                      include_plotlyjs=(k == 0)))
         verdict = html.escape(teaching.verdict(self.view)) if self.view else ""
         name = html.escape(self.scenario.name)

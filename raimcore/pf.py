@@ -344,6 +344,7 @@ class ParticleBank:
         w, log_pred = normalise_log_weights(self.log_w + ll)
         n_eff = effective_sample_size(w)
         est = weighted_mean(self.particles, w)
+
         self.log_w = np.log(np.maximum(w, 1e-300))
         # Resample when N_eff < N_th = 2N/3 (seed 002, section 1).
         need = n_eff < self.n_threshold
@@ -381,6 +382,10 @@ class BankRun:
     argmax : (E,) / (R, E) int, the satellite achieving ``beta`` (-1 where not armed).
     available : (E,) bool, enough satellites to update and compare (m >= n + 1).
     armed : (E,) bool, available and the window filled after the burn-in.
+    cloud : (E, K, D) K particles (every N/K-th) of the main filter of realisation 0 after
+        each epoch's update and any resampling, NaN before the first fix; None unless
+        asked for (``keep_cloud``).
+    cloud_weight : (E, K) their weights, renormalised over the K, or None.
     """
 
     estimate: np.ndarray
@@ -391,6 +396,8 @@ class BankRun:
     argmax: np.ndarray
     available: np.ndarray
     armed: np.ndarray
+    cloud: np.ndarray | None = None
+    cloud_weight: np.ndarray | None = None
 
 
 def _noise_weight(noise):
@@ -456,7 +463,7 @@ def robust_fix(pos_sv_ecef_m, pr_m, used, sys_idx, n_sys: int, noise, n_iter: in
 
 def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
                  model: ProcessModel, *, n_particles: int, window: int, burn_in: int,
-                 rng: np.random.Generator, scale=None) -> BankRun:
+                 rng: np.random.Generator, scale=None, keep_cloud: int = 0) -> BankRun:
     """Run the bank of s + 1 SIR filters and the windowed LLR test (spec section 3).
 
     Parameters
@@ -473,6 +480,8 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     rng : random generator.
     scale : optional (E, S) per-satellite factor on the noise (the elevation model of a
         recording, :class:`~raimcore.noise.Scaled`); None: the same noise for all.
+    keep_cloud : keep this many particles of the main filter (realisation 0) per epoch
+        for display (``BankRun.cloud``); 0: none.
 
     Returns
     -------
@@ -523,6 +532,14 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     bank = ParticleBank(initial_cloud(fix.pos_ecef_m, fix.clock_m, fix.cov_enu, n_particles,
                                       model, rng, batch=(q_n,), vel_mean_mps=vel0,
                                       vel_sigma_mps=vel_sd, inflate=3.0), model)
+    k_keep = min(int(keep_cloud), n_particles)
+    cloud = cloud_w = None
+    if k_keep > 0:
+        pick = np.linspace(0, n_particles - 1, k_keep).round().astype(int)
+        cloud = np.full((e_n, k_keep, model.dim), np.nan)
+        cloud_w = np.full((e_n, k_keep), np.nan)
+        cloud[k0] = bank.particles[0, 0][pick]
+        cloud_w[k0] = 1.0 / k_keep
     est0 = np.zeros((r_n, model.dim))
     est0[:, :3] = fix.pos_ecef_m
     est0[:, model.clk0:] = np.nan_to_num(fix.clock_m)
@@ -542,6 +559,10 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
         res = bank.step(t_s[k] - t_s[k - 1], sv[k][None, None], pr[:, k][:, None, :],
                         mask[None], sys_idx, noise_at(k), rng, q_scale, q_scale_vel)
         estimate[:, k] = res.estimate
+        if cloud is not None:  # the posterior sample after the update (and any resampling)
+            cloud[k] = bank.particles[0, 0][pick]
+            wk = np.exp(bank.log_w[0, 0][pick])
+            cloud_w[k] = wk / wk.sum()
         if available[k]:
             n_eff[:, k] = res.n_eff
             if k >= first_llr:
@@ -559,7 +580,7 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     beta = np.take_along_axis(scored, arg[..., None], axis=-1)[..., 0]
     beta = np.where(armed[None], beta, np.nan)
     arg = np.where(armed[None], arg, -1)
-    return BankRun(estimate, n_eff, llr, cum, beta, arg, available, armed)
+    return BankRun(estimate, n_eff, llr, cum, beta, arg, available, armed, cloud, cloud_w)
 
 
 # -- threshold calibration (spec section 3: "tau has no closed form") --------------------

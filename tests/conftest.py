@@ -1,8 +1,17 @@
 """Shared fixtures and paths for the test suite."""
 
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Property tests draw their examples from a fixed seed, so a run (and CI) is reproducible;
+# `HYPOTHESIS_PROFILE=explore pytest` draws new random examples on every run to hunt
+# for counterexamples, which then belong in an @example.
+settings.register_profile("repeatable", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
 
 REPO = Path(__file__).resolve().parents[1]
 # Real data lives beside the repository (../shared/data); tests skip cleanly without it.

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
@@ -21,14 +21,20 @@ def random_geometry(rng, m, batch=()):
 
 @settings(max_examples=60, deadline=None)
 @given(st.integers(5, 12), st.integers(0, 2**32 - 1), st.sampled_from(["potter", "qr"]))
+@example(5, 99999999, "potter")  # a first pivot of 4e-4: Potter's rows lose digits
 def test_parity_identities(m, seed, method):
     h = random_geometry(np.random.default_rng(seed), m)
     v = parity_matrix(h, method)
     w = np.eye(m) - h @ np.linalg.solve(h.T @ h, h.T)
     assert v.shape == (m - 4, m)
+    # Potter divides row i by its pivot d_i = V_ii: the rounding error of W grows by
+    # 1/d_i^2 (measured: 1.4e-9 at d = 4e-4, a satellite of leverage 1 - 1.6e-7).
+    # QR is orthogonal by construction.
+    pivot2 = np.min(np.diag(v)[: m - 4] ** 2) if method == "potter" else 1.0
+    bound = max(tol, 50 * np.finfo(float).eps / pivot2)
     assert np.abs(v @ h).max() < tol
-    assert np.abs(v @ v.T - np.eye(m - 4)).max() < tol
-    assert np.abs(v.T @ v - w).max() < tol
+    assert np.abs(v @ v.T - np.eye(m - 4)).max() < bound
+    assert np.abs(v.T @ v - w).max() < bound
 
 
 def test_potter_is_upper_triangular_with_positive_diagonal():

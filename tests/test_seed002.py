@@ -86,6 +86,37 @@ def test_dashboard_panels_show_beta_tau_llr_and_neff(runs):
     assert "n_eff" in cols and "memory_epochs" not in cols
 
 
+def test_particle_cloud_panel_follows_the_time_slider(runs):
+    """pf-llr hands the main filter's cloud to the dashboard: a panel whose particles
+    move with the time index; the weighted mean of the kept particles is the filter's
+    estimate (its horizontal error is the table's HPE)."""
+    pytest.importorskip("plotly")
+    from app import panels
+    from app.session import run_view
+
+    r = runs["pf-llr", 0]
+    enu = r.output.extras["particles_enu_m"]
+    w = r.output.extras["particle_weight"]
+    assert enu.shape == (len(r.table), 100, 3)  # N = 100 <= 200 kept
+    np.testing.assert_allclose(np.nansum(w, axis=1)[1:], 1.0)
+    mean = np.einsum("ek,eki->ei", w[60:], enu[60:])
+    hpe = np.asarray(r.table["hpe_before_m"], float)[60:]
+    # Equal where the filter did not resample; after a resampling the kept (equal-weight)
+    # sample's mean differs from the pre-resampling weighted mean by resampling noise.
+    np.testing.assert_allclose(np.hypot(mean[:, 0], mean[:, 1]), hpe, atol=0.2)
+    assert np.mean(np.isclose(np.hypot(mean[:, 0], mean[:, 1]), hpe, atol=1e-6)) > 0.3
+    view = run_view(r)
+    built = dict(panels.panels_for(view))
+    assert "particles" in built
+    fig = built["particles"](view)
+    a, _ = fig.dynamic(50)
+    b, _ = fig.dynamic(300)
+    assert len(a[0]["x"]) == 100 and not np.allclose(a[0]["x"], b[0]["x"])
+    assert fig.layout["xaxis"]["range"][1] < 50  # metres around the truth, fixed axes
+    ekf_view = run_view(runs["ekf", 0])
+    assert "particles" not in dict(panels.panels_for(ekf_view))
+
+
 def test_gaussian_mixture_noise_too():
     """The same with the other heavy-tailed model (10 % outliers at 5 sigma)."""
     pf_run = run_scenario(load_scenario("seed002", algorithm="pf-llr", noise="mixture"))

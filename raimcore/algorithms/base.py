@@ -121,6 +121,8 @@ class AlgorithmOutput:
     per_sat : extra per-satellite arrays (E, S), e.g. ``"isolation"`` (the isolation
         statistic of each satellite, NaN where unused), ``"isolability"``.
     columns : extra per-epoch columns (E,), e.g. ``"hpl_m"``, ``"vpl_m"``, ``"n_eff"``.
+    extras : other per-epoch arrays (E, ...) for displays, not in the result table, e.g.
+        ``"particles_enu_m"`` (E, K, 3) and ``"particle_weight"`` (E, K) of ``pf-llr``.
     """
 
     status: np.ndarray
@@ -133,6 +135,7 @@ class AlgorithmOutput:
     isolated: np.ndarray
     per_sat: Mapping[str, np.ndarray] = field(default_factory=dict)
     columns: Mapping[str, np.ndarray] = field(default_factory=dict)
+    extras: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def expand_sats(self, cols, n_sats: int) -> AlgorithmOutput:
         """Map an output computed on the satellites ``cols`` back to ``n_sats`` satellites.

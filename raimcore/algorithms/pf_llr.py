@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._validate import check_choice, check_int, check_positive, check_probability
+from ..geometry import ecef_to_enu
 from ..noise import scaled
 from ..pf import (
     PROCESS_MODELS,
@@ -63,6 +64,10 @@ CALIBRATION_RUNS = 32
 CALIBRATION_ARMED_EPOCHS = 60
 #: Seed of the calibration runs: fixed, so a configuration always gets the same tau.
 CALIBRATION_SEED = 2002
+#: Particles of the main filter kept per epoch for display (``extras``), and the budget
+#: (epochs x particles) that caps it on long runs.
+CLOUD_PARTICLES = 200
+CLOUD_BUDGET = 2_000_000
 
 
 def process_model(options: dict, n_clk: int) -> ProcessModel:
@@ -146,10 +151,18 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     model = process_model(options, len(data.systems))
     e_n, s_n = data.pr_m.shape
     scale = noise_scale(data)
+    keep = min(CLOUD_PARTICLES, CLOUD_BUDGET // max(e_n, 1))
     bank = run_llr_bank(data.pos_sv_ecef_m, data.pr_m[None], data.used, data.t_s,
                         data.sys_idx, len(data.systems), data.noise, model, n_particles=n,
-                        window=window, burn_in=burn_in, rng=data.rng(0), scale=scale)
+                        window=window, burn_in=burn_in, rng=data.rng(0), scale=scale,
+                        keep_cloud=keep)
     armed = bank.armed
+    extras = {}
+    if bank.cloud is not None:
+        # The main filter's cloud as East/North/Up offsets from the true position (m).
+        rx = np.asarray(data.pos_rx_true_ecef_m, dtype=float)[:, None, :]
+        extras = {"particles_enu_m": ecef_to_enu(bank.cloud[..., :3], rx),
+                  "particle_weight": bank.cloud_weight}
     tau = np.nan
     if tau_opt is not None:
         tau = tau_opt
@@ -174,6 +187,7 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
         per_sat={"llr": np.where(armed[:, None], bank.cum_llr[0], np.nan)},
         columns={"beta": np.where(armed, beta, np.nan), "n_eff": bank.n_eff[0, :, 0],
                  "memory_epochs": np.full(e_n, window)},
+        extras=extras,
     )
 
 
