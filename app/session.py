@@ -131,7 +131,7 @@ class Session:
                                            else names[0])
             self.algorithm = gui.add_dropdown("Algorithm", algorithms.names(),
                                               initial_value=s.algorithm)
-            self.sigma = gui.add_slider("Noise sigma (m)", 0.5, 50.0, 0.5, s.sigma_m)
+            self.sigma = gui.add_slider("Noise sigma (m)", 0.1, 50.0, 0.1, s.sigma_m)
             self.noise_corr = gui.add_slider(
                 "Noise correlation (s)", 0.0, max(3600.0, s.noise_corr_s), 5.0, s.noise_corr_s,
                 hint="correlation time of the noise (first-order Gauss-Markov); 0 = white. "
@@ -164,6 +164,10 @@ class Session:
             self.rec_upload_obs = gui.add_upload_button("Upload observation file")
             self.rec_upload_nav = gui.add_upload_button("Upload navigation file")
             self.rec_notes = gui.add_markdown("")
+            self.rec_use_corr = gui.add_button(
+                "Use the measured noise correlation", visible=False,
+                hint="set Noise correlation (s) to the Gauss-Markov time fitted to this "
+                     "recording's errors: PF-LLR then calibrates its threshold on it")
         with gui.add_folder("Export", expand_by_default=False):
             self.export_csv = gui.add_button("Download table (CSV)")
             self.export_html = gui.add_button("Download figures (HTML)")
@@ -193,6 +197,7 @@ class Session:
         self.per_sat_pick.on_update(lambda _e: self._on_per_sat_pick())
         self.play.on_update(lambda _e: self._on_play())
         self.rec_open.on_click(lambda _e: self._on_open_recording())
+        self.rec_use_corr.on_click(lambda _e: self.use_measured_correlation())
         self.rec_upload_obs.on_upload(lambda _e: self._on_upload(self.rec_upload_obs,
                                                                  self.rec_obs))
         self.rec_upload_nav.on_upload(lambda _e: self._on_upload(self.rec_upload_nav,
@@ -317,6 +322,26 @@ class Session:
             self.open_recording(self.rec_obs.value.strip(), self.rec_nav.value.strip())
         except ValueError as exc:
             self._show_error(exc)
+
+    def use_measured_correlation(self) -> float | None:
+        """Set the noise-correlation control to the Gauss-Markov time fitted to the open
+        recording's errors (:func:`raimcore.recording.error_statistics`); returns it, or
+        None when there is no recording or no finite positive fit."""
+        from raimcore.recording import error_statistics
+
+        if self.result is None or self.result.scenario.source != "rinex":
+            return None
+        try:
+            corr = error_statistics(self.result.data).corr_s
+        except ValueError as exc:
+            self._show_error(exc)
+            return None
+        if not (0.0 < corr < math.inf):
+            return None
+        value = float(round(corr / 5.0) * 5.0)  # the control's step
+        self.noise_corr.max = max(float(self.noise_corr.max), value)
+        self.noise_corr.value = value  # fires a recompute like a user's move
+        return value
 
     def _on_upload(self, button, field) -> None:
         """Save an uploaded file in this session's temporary folder; open the recording
@@ -479,6 +504,7 @@ class Session:
                                f"{len(result.data.sat_names)} satellites · update "
                                f"{1e3 * tm.total_s:.0f} ms")
         self.rec_notes.content = "".join(f"- {html.escape(n)}\n" for n in result.data.notes)
+        self.rec_use_corr.visible = scenario.source == "rinex"
         self._refresh_fault_sats()
         self._refresh_per_sat_pick()
 

@@ -284,6 +284,7 @@ def test_session_controls_drive_figures_and_scene(session):
     s.noise_corr.value = 120.0  # time-correlated noise: same sigma, new draws
     _settle(s)
     assert s.result.scenario.noise_corr_s == 120.0
+    assert not s.rec_use_corr.visible and s.use_measured_correlation() is None  # simulated
     assert not np.allclose(stat1, np.array(s.figures["detection"].data[0]["y"]),
                            equal_nan=True)
 

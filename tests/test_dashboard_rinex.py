@@ -153,3 +153,15 @@ def test_cli_dashboard_takes_a_recording():
 
     args = build_parser().parse_args(["dashboard", "--obs", "a.rnx", "--nav", "b.rnx"])
     assert (args.obs, args.nav) == ("a.rnx", "b.rnx")
+
+
+def test_measured_noise_correlation_is_one_click_away(session):
+    """The Recording folder offers the fitted Gauss-Markov time of the real errors; one
+    click sets the noise-correlation control and the next run uses it."""
+    assert session.rec_use_corr.visible
+    assert "measured pseudorange errors" in session.rec_notes.content
+    session.rec_use_corr.value = True  # a click
+    _settle(session)
+    corr = session.result.scenario.noise_corr_s
+    assert 600.0 < corr < 3600.0  # ESBC: about 1283 s
+    assert session.noise_corr.value == corr
