@@ -83,8 +83,9 @@ def test_page_loads_reacts_to_a_slider_and_draws_the_scene(dash):
                 ".map(p => p.getAttribute('d') || '').join('|');"
                 " return now && now !== before; }", arg=before, timeout=90_000)
             assert session.scheduler.wait_idle(60)
-            assert session.sigma.value == pytest.approx(sigma0 + 10 * 0.5)
-            assert session.result.scenario.sigma_m == pytest.approx(sigma0 + 10 * 0.5)
+            moved = sigma0 + 10 * session.sigma.step  # ten arrow presses, one step each
+            assert session.sigma.value == pytest.approx(moved)
+            assert session.result.scenario.sigma_m == pytest.approx(moved)
             assert session.timing.n_recomputes > n0
             page.wait_for_timeout(1500)
             page.screenshot(path=str(SHOTS / "dashboard.png"))
