@@ -382,6 +382,9 @@ def _add_montecarlo(sub):
     p.add_argument("--bias-unit", choices=["full", "group"], default="full",
                    help="fault unit: P_bias of the full set (spec, default) or of one "
                         "group (our hypothesis for the paper's unit, see README)")
+    p.add_argument("--gate", action="store_true",
+                   help="count an isolation only when the full-set chi-square test also "
+                        "detects (default: every run scored, as the paper)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar on stderr (default: when stderr is a terminal)")
     p.set_defaults(func=_cmd_montecarlo)
@@ -396,7 +399,7 @@ def _cmd_montecarlo(args) -> int:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     _, text = run_table(args.study, runs=args.runs, seed=args.seed,
                         scales=tuple(args.scales or (1.0, 2.0)), bias_unit=args.bias_unit,
-                        workers=args.workers,
+                        gate=args.gate, workers=args.workers,
                         dask=args.dask, out_dir=args.out, progress=args.progress)
     print(text)
     if args.out is not None:

@@ -14,7 +14,11 @@ results (integer counts summed per cell) are therefore identical in-process, on 
 pool with any number of workers, or on a Dask cluster, and whatever the order chunks finish.
 
 Scoring (seed 004 section 3): a run is a correct isolation when the isolated set equals the
-faulty set exactly. Every run is scored (each has a fault), without a detection gate.
+faulty set exactly. Every run is scored (each has a fault), without a detection gate, as
+the paper's rate "correct isolations / isolations" suggests; with ``gate=True`` a run
+counts only if the full-set chi-square test (all N satellites, dof N - 5) also alarms at
+``p_fa``, as a receiver would isolate only after a detection. Every cell also reports how
+often that test alarms (``detected_rate``, shared by the algorithms of a setting).
 
 Algorithms are named kernels (:data:`KERNELS`): ``"gf"``, ``"rs"``, ``"qv"``, ``"parity"``,
 with options after a colon, e.g. ``"gf:groups=100,weights=uniform"``. Another algorithm
@@ -46,7 +50,7 @@ from .geometry import geodetic_to_ecef, los_enu
 
 __all__ = ["Study", "StudyResult", "run_study", "p_bias_m", "p_bias_group_m", "random_geometry",
            "simulate_runs", "KERNELS", "register_kernel", "parse_algorithm", "CHUNK_RUNS",
-           "markdown_table", "write_csv", "run_chunk", "BIAS_UNITS"]
+           "markdown_table", "write_csv", "run_chunk", "BIAS_UNITS", "full_set_alarm"]
 
 #: Fault units: the spec's full-set P_bias, or the group-level hypothesis.
 BIAS_UNITS = ("full", "group")
@@ -54,6 +58,9 @@ BIAS_UNITS = ("full", "group")
 #: Runs per work unit. Fixed (not derived from the number of workers) so that the seeds of
 #: every run, and hence the results, do not depend on how the work is spread.
 CHUNK_RUNS = 250
+
+#: Key of the full-set detection count in a chunk's counts (not an algorithm name).
+DETECTED = "_detected"
 
 #: Seconds in one sidereal-ish day used to draw random times (GPS repeats daily).
 _DAY_S = 86_400.0
@@ -258,6 +265,7 @@ class Study:
         paper's fault size, which behaves like 2x ours).
     bias_unit : ``"full"`` (spec: P_bias of the full set, eq. 13) or ``"group"``
         (:func:`p_bias_group_m`, a hypothesis for the paper's unit).
+    gate : score a run only when the full-set chi-square test also alarms (module doc).
     name : used in file names.
     """
 
@@ -273,6 +281,7 @@ class Study:
     mask_deg: float = 5.0
     bias_scale: float = 1.0
     bias_unit: str = "full"
+    gate: bool = False
     name: str = "study"
 
     def __post_init__(self):
@@ -291,6 +300,8 @@ class Study:
         check_range("mask_deg", self.mask_deg, 0.0, 60.0)
         check_positive("bias_scale", self.bias_scale)
         check_choice("bias_unit", self.bias_unit, BIAS_UNITS)
+        if not isinstance(self.gate, bool):
+            raise ValueError(f"gate must be true or false, got {self.gate!r}")
 
     def unit_m(self, n_visible: int) -> float:
         """The fault unit (m) for ``n_visible`` satellites."""
@@ -327,13 +338,30 @@ def run_chunk(study: Study, setting, chunk: int) -> dict[str, int]:
     rng = np.random.default_rng(css)
     bias_m = b * study.bias_scale * study.unit_m(n)
     h, y, faulty = simulate_runs(rng, n_runs, n, k, bias_m, study.sigma_m, study.mask_deg)
-    out = {}
+    detected = full_set_alarm(h, y, study.sigma_m, study.p_fa)
+    out = {DETECTED: int(detected.sum())}
     for algo in study.algorithms:
         name, opts = parse_algorithm(algo)
         arng = np.random.default_rng(_algo_ss(css, algo))
         iso = KERNELS[name](h, y, sigma_m=study.sigma_m, p_fa=study.p_fa, rng=arng, **opts)
-        out[algo] = int(np.sum(np.all(iso == faulty, axis=-1)))
+        right = np.all(iso == faulty, axis=-1)
+        out[algo] = int(np.sum(right & detected if study.gate else right))
     return out
+
+
+def full_set_alarm(h, y, sigma_m: float, p_fa: float) -> np.ndarray:
+    """The full-set least-squares residual chi-square test of each run.
+
+    ``h (R, N, n)``, ``y (R, N)``: ``SSE = ||y - H x_hat||^2 / sigma^2`` against
+    ``chi2.isf(p_fa, N - n)``. Returns ``(R,)`` bool.
+    """
+    h = np.asarray(h, dtype=float)
+    y = np.asarray(y, dtype=float)
+    x = np.linalg.solve(np.swapaxes(h, -1, -2) @ h,
+                        np.einsum("rni,rn->ri", h, y)[..., None])[..., 0]
+    r = y - np.einsum("rni,ri->rn", h, x)
+    sse = np.einsum("rn,rn->r", r, r) / sigma_m**2
+    return sse > stats.chi2.isf(p_fa, h.shape[-2] - h.shape[-1])
 
 
 @dataclass(frozen=True)
@@ -379,7 +407,8 @@ def _ledger_key(study: Study, setting) -> str:
     n, k, b = setting
     return json.dumps([n, k, b, study.runs, study.seed, study.sigma_m, study.p_fa,
                        study.p_md, study.mask_deg, study.bias_scale]
-                      + ([study.bias_unit] if study.bias_unit != "full" else []))
+                      + ([study.bias_unit] if study.bias_unit != "full" else [])
+                      + (["gate"] if study.gate else []))
 
 
 def _read_ledger(path: Path) -> dict[str, dict]:
@@ -412,7 +441,8 @@ def run_study(study: Study, *, workers: int = 1, dask: str | None = None,
     Returns
     -------
     StudyResult with one row per cell: n_visible, n_faults, bias, algorithm, runs,
-    correct, rate, ci_low, ci_high (95% Clopper-Pearson), p_bias_m, fault_m.
+    correct, rate, ci_low, ci_high (95% Clopper-Pearson), p_bias_m, fault_m, detected_rate
+    (share of the runs where the full-set chi-square test alarms).
     """
     workers = check_int("workers", workers, 1, 256)
     t0 = time.perf_counter()
@@ -425,10 +455,11 @@ def run_study(study: Study, *, workers: int = 1, dask: str | None = None,
     todo = []
     for s in settings:
         prev = done.get(_ledger_key(study, s))
-        if prev is not None and all(a in prev for a in study.algorithms):
-            counts[s] = {a: prev[a] for a in study.algorithms}
+        keys = (*study.algorithms, DETECTED)
+        if prev is not None and all(a in prev for a in keys):
+            counts[s] = {a: prev[a] for a in keys}
         else:
-            counts[s] = dict.fromkeys(study.algorithms, 0)
+            counts[s] = dict.fromkeys(keys, 0)
             todo += [(s, c) for c in range(n_chunks)]
     remaining = {s: n_chunks for s, c in todo if c == 0}
     bar = _Progress(len(todo), progress, study.name)
@@ -467,7 +498,8 @@ def run_study(study: Study, *, workers: int = 1, dask: str | None = None,
             rows.append({"n_visible": n, "n_faults": k, "bias": b, "algorithm": a,
                          "runs": study.runs, "correct": c, "rate": c / study.runs,
                          "ci_low": ci.low, "ci_high": ci.high, "p_bias_m": round(pb, 2),
-                         "fault_m": round(b * study.bias_scale * pb, 2)})
+                         "fault_m": round(b * study.bias_scale * pb, 2),
+                         "detected_rate": counts[s][DETECTED] / study.runs})
     res = StudyResult(study, rows, time.perf_counter() - t0)
     if out is not None:
         write_csv(res, out / f"{study.name}.csv")

@@ -53,25 +53,27 @@ def paper_table2() -> dict[tuple[int, int, float, str], float]:
     return out
 
 
-def _label(bias_scale: float, bias_unit: str) -> str:
-    return f"x{bias_scale:g}" + ("" if bias_unit == "full" else f"-{bias_unit}")
+def _label(bias_scale: float, bias_unit: str, gate: bool = False) -> str:
+    return (f"x{bias_scale:g}" + ("" if bias_unit == "full" else f"-{bias_unit}")
+            + ("-gated" if gate else ""))
 
 
 def table1_study(runs: int = 5000, seed: int = 4, bias_scale: float = 1.0,
-                 bias_unit: str = "full") -> Study:
+                 bias_unit: str = "full", gate: bool = False) -> Study:
     """Table 1: GF with 10 .. 6000 groups, dual faults at 1.0 P_bias, N = 14 .. 22."""
     return Study(n_visible=N_VISIBLE, n_faults=(2,), bias=(1.0,),
                  algorithms=tuple(f"gf:groups={g}" for g in TABLE1_GROUPS), runs=runs,
-                 seed=seed, bias_scale=bias_scale, bias_unit=bias_unit,
-                 name=f"seed004-table1-{_label(bias_scale, bias_unit)}")
+                 seed=seed, bias_scale=bias_scale, bias_unit=bias_unit, gate=gate,
+                 name=f"seed004-table1-{_label(bias_scale, bias_unit, gate)}")
 
 
 def table2_study(runs: int = 5000, seed: int = 4, bias_scale: float = 1.0,
-                 bias_unit: str = "full") -> Study:
+                 bias_unit: str = "full", gate: bool = False) -> Study:
     """Table 2: RS, QV, GF (N^2 groups) for 4 biases x 1-3 faults x N = 14 .. 22."""
     return Study(n_visible=N_VISIBLE, n_faults=(1, 2, 3), bias=(0.8, 1.0, 1.5, 2.0),
                  algorithms=("rs", "qv", "gf"), runs=runs, seed=seed, bias_scale=bias_scale,
-                 bias_unit=bias_unit, name=f"seed004-table2-{_label(bias_scale, bias_unit)}")
+                 bias_unit=bias_unit, gate=gate,
+                 name=f"seed004-table2-{_label(bias_scale, bias_unit, gate)}")
 
 
 def compare_table2(res: StudyResult) -> dict:
@@ -110,7 +112,8 @@ def format_table2(results: list[StudyResult]) -> str:
     per N."""
     ref = paper_table2()
     st = results[0].study
-    labels = " | ".join(_label(r.study.bias_scale, r.study.bias_unit) for r in results)
+    labels = " | ".join(_label(r.study.bias_scale, r.study.bias_unit, r.study.gate)
+                        for r in results)
     head = (f"Correct isolation rate (%), {st.runs} runs a cell; each N column: paper | "
             f"ours {labels} (fault bias scale)")
     cols = "".join(f"{'N=' + str(n):^{8 + 7 * len(results)}}" for n in st.n_visible)
@@ -125,7 +128,7 @@ def format_table2(results: list[StudyResult]) -> str:
                 lines.append(f"{b:4.1f} {k:2d} {a:>3} " + "  ".join(cells))
     for r in results:
         c = compare_table2(r)
-        size = _label(r.study.bias_scale, r.study.bias_unit)
+        size = _label(r.study.bias_scale, r.study.bias_unit, r.study.gate)
         lines.append(
             f"fault size {size}: RMS ours - paper: GF {c['rms_gf']:.1f}, "
             f"RS {c['rms_rs']:.1f}, QV {c['rms_qv']:.1f} points; GF ahead of RS and QV in "
@@ -138,7 +141,8 @@ def format_table1(results: list[StudyResult]) -> str:
     """Table 1 as text: one line per number of groups, "paper | ours x1 | ours x2" per N."""
     ref = paper_table1()
     st = results[0].study
-    labels = " | ".join(_label(r.study.bias_scale, r.study.bias_unit) for r in results)
+    labels = " | ".join(_label(r.study.bias_scale, r.study.bias_unit, r.study.gate)
+                        for r in results)
     lines = [f"GF correct isolation rate (%), dual faults at 1.0 P_bias, {st.runs} runs a "
              f"cell; each N column: paper | ours {labels} (fault bias scale)",
              f"{'groups':>6} " + "".join(f"{'N=' + str(n):^{8 + 7 * len(results)}}"
@@ -152,24 +156,27 @@ def format_table1(results: list[StudyResult]) -> str:
             cells.append(f"{'—' if p is None else format(p, '6.1f'):>6} |{ours}")
         lines.append(f"{g:>6} " + "  ".join(cells))
     for r in results:
-        size = _label(r.study.bias_scale, r.study.bias_unit)
+        size = _label(r.study.bias_scale, r.study.bias_unit, r.study.gate)
         lines.append(f"fault size {size}: wall time {r.wall_s:.1f} s "
                      f"(with N = 14, 3000 and 6000 groups are all C(14, 6) = {math.comb(14, 6)})")
     return "\n".join(lines)
 
 
 def run_table(table: str, *, runs: int = 5000, seed: int = 4, scales=(1.0, 2.0),
-              bias_unit: str = "full", workers: int = 1, dask: str | None = None,
-              out_dir=None, progress: bool | None = None) -> tuple[list[StudyResult], str]:
-    """Run ``"seed004-table1"`` or ``"seed004-table2"`` at each fault-bias scale.
+              bias_unit: str = "full", gate: bool = False, workers: int = 1,
+              dask: str | None = None, out_dir=None,
+              progress: bool | None = None) -> tuple[list[StudyResult], str]:
+    """Run ``"seed004-table1"`` or ``"seed004-table2"`` at each fault-bias scale
+    (``gate``: score only runs the full-set chi-square test detects, see
+    :mod:`raimcore.montecarlo`).
 
     Returns the study results and the printed comparison text.
     """
     if table not in TABLES:
         raise ValueError(f"table must be one of {', '.join(TABLES)}, got {table!r}")
     make = table1_study if table == "seed004-table1" else table2_study
-    results = [run_study(make(runs, seed, float(s), bias_unit), workers=workers, dask=dask,
-                         out_dir=out_dir, progress=progress) for s in scales]
+    results = [run_study(make(runs, seed, float(s), bias_unit, gate), workers=workers,
+                         dask=dask, out_dir=out_dir, progress=progress) for s in scales]
     text = (format_table1 if table == "seed004-table1" else format_table2)(results)
     if out_dir is not None:
         from pathlib import Path

@@ -98,6 +98,39 @@ def test_resume_skips_finished_settings(tmp_path, monkeypatch):
     assert json.loads(ledger.read_text().splitlines()[-1])["counts"]["gf"] >= 0
 
 
+def test_full_set_test_false_alarm_rate_and_detection_probability_match_theory():
+    """The gate's full-set chi-square test: without a fault it alarms at p_fa; with one
+    fault of b on satellite i its detection probability is ncx2.sf(T, N - 5, lam_i),
+    lam_i = b^2 (1 - l_i) / sigma^2 (l_i the leverage), averaged over the runs' geometries:
+    both checked on the count of alarms (normal approximation of the Poisson-binomial)."""
+    rng = np.random.default_rng(21)
+    p_fa, sigma, n = 0.05, 33.0, 16
+    h, y, _ = mc.simulate_runs(rng, 4000, n, 0, 0.0, sigma)
+    k = int(mc.full_set_alarm(h, y, sigma, p_fa).sum())
+    assert stats.binomtest(k, 4000, p_fa).pvalue > 1e-3, k
+    h, y, faulty = mc.simulate_runs(rng, 4000, n, 1, 150.0, sigma)
+    alarm = mc.full_set_alarm(h, y, sigma, p_fa)
+    lev = np.einsum("rni,rij,rnj->rn", h, np.linalg.inv(np.swapaxes(h, 1, 2) @ h), h)
+    lam = 150.0**2 * (1.0 - lev[faulty]) / sigma**2
+    pd = stats.ncx2.sf(stats.chi2.isf(p_fa, n - 5), n - 5, lam)
+    z = (alarm.sum() - pd.sum()) / math.sqrt(np.sum(pd * (1 - pd)))
+    assert abs(z) < 3.5, (int(alarm.sum()), float(pd.sum()))
+    assert 0.2 < pd.mean() < 0.9  # a fault size where detection is genuinely uncertain
+
+
+def test_gate_scores_only_detected_runs_and_reports_the_detection_rate(small_in_process):
+    gated = mc.run_study(SMALL.__class__(**{**mc.study_dict(SMALL), "gate": True}),
+                         progress=False)
+    for a, b in zip(small_in_process.rows, gated.rows, strict=True):
+        assert a["detected_rate"] == b["detected_rate"]  # same runs, same test
+        assert b["correct"] <= a["correct"]
+        assert b["rate"] <= a["detected_rate"]
+    assert any(b["correct"] < a["correct"]
+               for a, b in zip(small_in_process.rows, gated.rows, strict=True))
+    s = SMALL.settings()[0]
+    assert mc._ledger_key(SMALL, s) != mc._ledger_key(gated.study, s)  # never mixed on resume
+
+
 def test_bad_study_parameters_raise():
     with pytest.raises(ValueError, match="algorithm must be one of gf, rs, qv, parity"):
         mc.Study(algorithms=("nope",))
