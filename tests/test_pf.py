@@ -292,3 +292,23 @@ def test_chunked_likelihood_equals_one_batch(monkeypatch):
     chunked = pf.log_likelihood(x, *args)
     np.testing.assert_allclose(chunked, whole, rtol=1e-12)
     np.testing.assert_allclose(loop, whole, rtol=1e-12)
+
+
+def test_tau_per_satellite_set_when_asked():
+    """tau_sets = "each": one calibration per satellite set in view, each armed epoch
+    against its own set's tau; "first" (default) keeps the first set's tau throughout."""
+    sc = load_scenario("seed002", faults=[], duration_s=260.0, restrict=[
+        {"sats": ["G03", "G15", "G18", "G21", "G26"], "t0_s": 150.0, "t1_s": 220.0}])
+    first = run_scenario(sc).table
+    each = run_scenario(sc.replace(tau_sets="each")).table
+    t = np.asarray(first["t_s"])
+    armed = np.isfinite(np.asarray(first["threshold"], dtype=float))
+    thr_f = np.asarray(first["threshold"], dtype=float)[armed]
+    thr_e = np.asarray(each["threshold"], dtype=float)
+    assert np.ptp(thr_f) == 0.0
+    six, five = armed & (t < 150), armed & (t >= 150) & (t < 220)
+    assert six.any() and five.any()
+    assert np.ptp(thr_e[six]) == 0.0 and np.ptp(thr_e[five]) == 0.0
+    assert thr_e[six][0] == thr_f[0] and thr_e[five][0] != thr_e[six][0]
+    with pytest.raises(ValueError, match="tau_sets"):
+        run_scenario(sc.replace(tau_sets="sometimes"))

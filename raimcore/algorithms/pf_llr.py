@@ -141,8 +141,10 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     first fix before LLRs are accumulated), ``tau`` (threshold; ``"auto"`` or ``None``:
     calibrated),
     ``p_fa_window`` (calibration target, false alarms per window), ``tau_cache``
-    (``"memory"``, ``"disk"``, ``"off"``), ``model``, ``q_pos_mps``, ``q_vel_mps2``,
-    ``q_clk_mps`` (process model, :class:`raimcore.pf.ProcessModel`).
+    (``"memory"``, ``"disk"``, ``"off"``), ``tau_sets`` (``"first"``: calibrate once, for
+    the satellites in view at the first armed epoch; ``"each"``: once per satellite set in
+    view, each armed epoch tested against its own set's tau), ``model``, ``q_pos_mps``,
+    ``q_vel_mps2``, ``q_clk_mps`` (process model, :class:`raimcore.pf.ProcessModel`).
     """
     n = check_int("n_particles", options.get("n_particles", 100), 2, 1_000_000)
     window = check_int("window", options.get("window", 30), 1, 100_000)
@@ -151,6 +153,7 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     cache = check_choice("tau_cache", options.get("tau_cache", "memory"),
                          ("memory", "disk", "off"))
     tau_opt = _parse_tau(options.get("tau", "auto"))
+    tau_sets = check_choice("tau_sets", options.get("tau_sets", "first"), ("first", "each"))
     model = process_model(options, len(data.systems))
     e_n, s_n = data.pr_m.shape
     scale = noise_scale(data)
@@ -166,12 +169,21 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
         rx = np.asarray(data.pos_rx_true_ecef_m, dtype=float)[:, None, :]
         extras = {"particles_enu_m": ecef_to_enu(bank.cloud[..., :3], rx),
                   "particle_weight": bank.cloud_weight}
-    tau = np.nan
+    tau = np.full(e_n, np.nan)
     if tau_opt is not None:
-        tau = tau_opt
+        tau[:] = tau_opt
+    elif armed.any() and tau_sets == "first":
+        tau[:] = _threshold(data, model, n, window, burn_in, p_fa, cache,
+                            int(np.flatnonzero(armed)[0]), scale)
     elif armed.any():
-        tau = _threshold(data, model, n, window, burn_in, p_fa, cache,
-                         int(np.flatnonzero(armed)[0]), scale)
+        # One calibration per satellite set in view (at its first armed epoch): the max
+        # over more LLRs, and another geometry, give another tau.
+        idx = np.flatnonzero(armed)
+        _, first, which = np.unique(data.used[idx], axis=0, return_index=True,
+                                    return_inverse=True)
+        for g, ref in enumerate(idx[first]):
+            tau[idx[which.reshape(-1) == g]] = _threshold(data, model, n, window, burn_in,
+                                                          p_fa, cache, int(ref), scale)
     beta = bank.beta[0]
     alarm = armed & (beta > tau)
     faulty = np.where(alarm, bank.argmax[0], -1)
@@ -201,7 +213,8 @@ SPEC = register(AlgorithmSpec(
     equations=EQUATIONS,
     run=run,
     options={"n_particles": 100, "window": 30, "burn_in": 30, "tau": "auto",
-             "p_fa_window": 1e-3, "tau_cache": "memory", "model": "static",
+             "p_fa_window": 1e-3, "tau_cache": "memory", "tau_sets": "first",
+             "model": "static",
              "q_pos_mps": 0.1, "q_vel_mps2": 0.5, "q_clk_mps": 0.1},
     reference="Particle filter and log-likelihood ratio RAIM (seed 002): SIR particle "
               "filter bank, windowed cumulative LLR, N = 100, W = 30.",
