@@ -5,7 +5,8 @@ that a particle filter uses as its likelihood. ``sigma_m`` is the core (nominal)
 snapshot algorithms assume; heavy-tailed models add outliers on top of it.
 
 **Time correlation.** Real pseudorange errors (multipath, residual troposphere and
-ionosphere) are correlated over tens of seconds to minutes. With ``corr_s > 0`` a model
+ionosphere, broadcast orbit and clock) are correlated over minutes (fitted on the
+recordings in ``../shared/data``: 236 s on SLAC, 1283 s on ESBC). With ``corr_s > 0`` a model
 draws, per satellite, a first-order Gauss-Markov sequence along the epoch axis (axis -2):
 ``u_k = phi_k u_{k-1} + sqrt(1 - phi_k^2) w_k``, ``phi_k = exp(-(t_k - t_{k-1}) / corr_s)``,
 ``u_0, w_k ~ N(0, 1)``, mapped through the model's own quantile function
@@ -15,6 +16,9 @@ dependence between epochs, which tests that sum over a window (PF-LLR) feel. For
 Gaussian model this is exactly the Gauss-Markov process with lag-``dt`` autocorrelation
 ``exp(-dt / corr_s)``. ``logpdf`` is always the marginal density (the filters treat the
 noise as white; that mismatch is the point of studying it).
+
+:class:`Scaled` gives a model a per-satellite scale (a recording's elevation model), and
+:func:`fit_gauss_markov` fits scale and correlation time to measured error series.
 """
 
 from __future__ import annotations
