@@ -113,7 +113,11 @@ def verdict(view: RunView, p_fa: float | None = None) -> str:
         if excl.any():
             msg += f", {name} excluded"
             if hpe_after is not None and np.isfinite(hpe_after[excl]).any():
-                msg += f", HPE back to {np.nanmedian(np.abs(hpe_after[excl])):.0f} m"
+                hpe = float(np.nanmedian(np.abs(hpe_after[excl])))
+                # Metres for snapshot errors; decimetres where they are small (filters,
+                # real data), so "back to 0 m" never shows.
+                msg += f", HPE back to {hpe:.0f} m" if hpe >= 10 else \
+                    f", HPE back to {hpe:.1f} m"
         else:
             others = np.flatnonzero(np.any(view.excluded[active], axis=0))
             others = [view.sat_names[k] for k in others if k != j]
