@@ -67,7 +67,7 @@ class Dashboard:
 
         s = self.start_scenario
         if s.source == "rinex":
-            from raimcore.recording import receiver_ecef_m
+            from raimcore.sky.recording import receiver_ecef_m
 
             rx = receiver_ecef_m(s)
         else:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from raimcore import algorithms
-from raimcore.faults import Fault
+from raimcore.measure.faults import Fault
 from raimcore.scenario import Scenario, ScenarioResult, list_scenarios, load_scenario
 from raimcore.scenario import run_scenario as _run_scenario
 
@@ -304,7 +304,7 @@ class Session:
     # -- recordings ---------------------------------------------------------------------
     def open_recording(self, obs: str, nav: str) -> None:
         """Open a RINEX recording (paths on the server) and offer it as a preset."""
-        from raimcore.recording import recording_scenario
+        from raimcore.sky.recording import recording_scenario
 
         scenario = recording_scenario(obs, nav, algorithm=self.algorithm.value)
         self.presets[scenario.name] = scenario
@@ -325,9 +325,9 @@ class Session:
 
     def use_measured_correlation(self) -> float | None:
         """Set the noise-correlation control to the Gauss-Markov time fitted to the open
-        recording's errors (:func:`raimcore.recording.error_statistics`); returns it, or
+        recording's errors (:func:`raimcore.sky.recording.error_statistics`); returns it, or
         None when there is no recording or no finite positive fit."""
-        from raimcore.recording import error_statistics
+        from raimcore.sky.recording import error_statistics
 
         if self.result is None or self.result.scenario.source != "rinex":
             return None

@@ -91,8 +91,8 @@ def _recording_scenario(args, over: dict):
         return None
     if not (args.obs and args.nav):
         raise ValueError("--obs and --nav go together (observation and navigation file)")
-    from .recording import recording_scenario
     from .scenario import load_scenario
+    from .sky.recording import recording_scenario
 
     rec = {"source": "rinex", "obs": args.obs, "nav": args.nav}
     if args.scenario:
@@ -101,7 +101,7 @@ def _recording_scenario(args, over: dict):
 
 
 def _overrides(args) -> dict:
-    from .faults import parse_fault
+    from .measure.faults import parse_fault
     from .scenario import parse_value
 
     over = {}
@@ -391,7 +391,7 @@ def _add_montecarlo(sub):
 
 
 def _cmd_montecarlo(args) -> int:
-    from .seed004 import run_table
+    from .studies.seed004 import run_table
 
     if args.runs < 1:
         raise ValueError(f"--runs must be >= 1, got {args.runs}")

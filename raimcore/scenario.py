@@ -25,14 +25,14 @@ import numpy as np
 from . import algorithms
 from ._validate import check_choice, check_int, check_positive, check_probability, check_range
 from .algorithms.base import STATUS_UNAVAILABLE, AlgorithmOutput, EpochData
-from .constellations import builtin, read_yuma
-from .faults import Fault, fault_biases
+from .algorithms.parity import _whitened_projector, detection_probability
 from .geometry import ecef_to_enu
 from .lsq import clock_columns, geometry_rows
-from .noise import NOISE_KINDS, make_noise
-from .parity import _whitened_projector, detection_probability
-from .table import ResultTable
-from .trajectories import TRAJECTORY_KINDS, flight_profile, static, straight_line
+from .measure.faults import Fault, fault_biases
+from .measure.noise import NOISE_KINDS, make_noise
+from .scoring.table import ResultTable
+from .sky.constellations import builtin, read_yuma
+from .sky.trajectories import TRAJECTORY_KINDS, flight_profile, static, straight_line
 
 __all__ = ["Scenario", "ScenarioResult", "Restrict", "load_scenario", "list_scenarios",
            "build_epoch_data", "run_scenario", "run_algorithm", "make_table", "parse_value",
@@ -61,11 +61,11 @@ class Scenario:
     (flight); ``clock_drift_mps``.
     Measurements: ``mask_deg``, ``sigma_m``, ``noise`` (gaussian | mixture | student-t),
     ``mixture_eps``, ``mixture_scale``, ``student_nu``, ``noise_corr_s`` (correlation time
-    of the noise in s, first-order Gauss-Markov; 0 = white; see :mod:`raimcore.noise`),
+    of the noise in s, first-order Gauss-Markov; 0 = white; see :mod:`raimcore.measure.noise`),
     ``faults``, ``restrict``, ``baro``, ``sigma_baro_m``.
     Integrity: ``algorithm``, ``p_fa``, ``p_md``, ``hal_m``, ``val_m``, ``seed``;
     algorithm-specific keys land in ``options``.
-    Real recordings (``source = "rinex"``, see :mod:`raimcore.recording`): ``obs``,
+    Real recordings (``source = "rinex"``, see :mod:`raimcore.sky.recording`): ``obs``,
     ``nav`` (RINEX paths), ``signals`` (code types, e.g. ``["C1C", "C2I"]``; empty = the
     defaults), ``truth_ecef_m`` (truth for the error columns; empty = the header position);
     ``t_start_s`` / ``duration_s`` / ``step_s`` then cut and thin the recording (t = 0 at
@@ -160,7 +160,7 @@ class Scenario:
 
 
 _FIELD_NAMES = {f.name for f in fields(Scenario)}
-#: Where the pseudoranges come from: simulated, or a RINEX recording (raimcore.recording).
+#: Where the pseudoranges come from: simulated, or a RINEX recording (raimcore.sky.recording).
 SOURCES = ("sim", "rinex")
 
 
@@ -324,10 +324,10 @@ def build_epoch_data(s: Scenario) -> EpochData:
 
     Random streams (noise, receiver clock, baro) are spawned from ``s.seed`` with
     ``SeedSequence``, so each is reproducible on its own. ``source = "rinex"`` reads a
-    recording instead (:func:`raimcore.recording.recording_epoch_data`).
+    recording instead (:func:`raimcore.sky.recording.recording_epoch_data`).
     """
     if s.source == "rinex":
-        from .recording import recording_epoch_data
+        from .sky.recording import recording_epoch_data
 
         return recording_epoch_data(s)
     const = (builtin(s.systems) if s.constellation == "nominal"

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from raimcore import constants as k
-from raimcore.constellations import beidou_nominal, builtin, gps_nominal, read_yuma
 from raimcore.geometry import ecef_to_geodetic
+from raimcore.sky.constellations import beidou_nominal, builtin, gps_nominal, read_yuma
 
 
 def test_gps_nominal_radius_period_and_names():

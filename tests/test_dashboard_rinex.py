@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("plotly")
 
-from raimcore.recording import recording_scenario  # noqa: E402
+from raimcore.sky.recording import recording_scenario  # noqa: E402
 
 ESBC_OBS = "ESBC00DNK_R_20201770000_02H_30S_MO.rnx"
 ESBC_NAV = "ESBC00DNK_R_20201770000_01D_MN.rnx"

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from raimcore.ekf import run_ekf
-from raimcore.pf import ProcessModel
+from raimcore.algorithms.ekf import run_ekf
+from raimcore.algorithms.pf import ProcessModel
 from raimcore.scenario import build_epoch_data, load_scenario, run_scenario
 
 

@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from raimcore import groupfusion as gf
-from raimcore.montecarlo import random_geometry
+from raimcore.algorithms import groupfusion as gf
+from raimcore.studies.montecarlo import random_geometry
 
 P_FA = 1e-5 / 3600
 prob = st.floats(0.0, 1.0)

@@ -1,8 +1,8 @@
 import numpy as np
 
-from raimcore.constellations import builtin
 from raimcore.geometry import az_el, geodetic_to_ecef
 from raimcore.lsq import wls
+from raimcore.sky.constellations import builtin
 
 one_mm = 1e-3
 

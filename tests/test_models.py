@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from raimcore.faults import Fault, fault_biases, parse_fault
-from raimcore.noise import Scaled, fit_gauss_markov, gauss_markov_unit, make_noise, scaled
-from raimcore.trajectories import flight_profile, static, straight_line
+from raimcore.measure.faults import Fault, fault_biases, parse_fault
+from raimcore.measure.noise import Scaled, fit_gauss_markov, gauss_markov_unit, make_noise, scaled
+from raimcore.sky.trajectories import flight_profile, static, straight_line
 
 
 @pytest.mark.parametrize("kind", ["gaussian", "mixture", "student-t"])

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from raimcore import montecarlo as mc
 from raimcore.cli import main
-from raimcore.seed004 import paper_table1, paper_table2, table2_study
+from raimcore.studies import montecarlo as mc
+from raimcore.studies.seed004 import paper_table1, paper_table2, table2_study
 
 P_FA = 1e-5 / 3600
 

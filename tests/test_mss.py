@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from raimcore import mss
+from raimcore.algorithms import mss
 
 SIGMA_M = 33.3  # seed 001 pseudorange sigma
 SIGMA_BARO_M = 50.0  # seed 001 baro sigma

@@ -6,7 +6,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from raimcore.parity import parity_matrix, parity_statistics, parity_test, sse_test
+from raimcore.algorithms.parity import parity_matrix, parity_statistics, parity_test, sse_test
 
 tol = 1e-9
 

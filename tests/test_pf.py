@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from raimcore import pf
-from raimcore.algorithms import pf_llr
+from raimcore.algorithms import pf, pf_llr
 from raimcore.lsq import wls
-from raimcore.noise import Gaussian, StudentT
+from raimcore.measure.noise import Gaussian, StudentT
 from raimcore.scenario import build_epoch_data, load_scenario, run_scenario
 
 ONE_CM = 0.01
@@ -257,7 +256,7 @@ def test_per_satellite_noise_scale_in_the_likelihood():
     model): with a uniform factor 2 it is exactly the noise model with twice the sigma;
     simulated scenarios have no scale at all."""
     from raimcore.algorithms.pf_llr import noise_scale
-    from raimcore.noise import make_noise, scaled
+    from raimcore.measure.noise import make_noise, scaled
 
     d = build_epoch_data(load_scenario("seed002", duration_s=2))
     model = pf.ProcessModel("static", 1)

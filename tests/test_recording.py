@@ -7,12 +7,12 @@ from scipy import stats
 
 from raimcore import algorithms
 from raimcore.cli import main
-from raimcore.faults import Fault
 from raimcore.geometry import ecef_to_enu
-from raimcore.recording import recording_scenario
-from raimcore.rinex import read_nav, read_obs
+from raimcore.measure.faults import Fault
 from raimcore.scenario import from_dict, load_scenario, run_scenario
-from raimcore.spp import spp
+from raimcore.sky.recording import recording_scenario
+from raimcore.sky.rinex import read_nav, read_obs
+from raimcore.sky.spp import spp
 
 ESBC_OBS = "ESBC00DNK_R_20201770000_02H_30S_MO.rnx"
 ESBC_NAV = "ESBC00DNK_R_20201770000_01D_MN.rnx"
@@ -43,7 +43,7 @@ def test_spp_within_10_m_of_the_header_position(shared_data, files, systems):
 
 
 def test_corrections_are_needed_for_the_accuracy(esbc):
-    from raimcore.spp import solve
+    from raimcore.sky.spp import solve
 
     obs = read_obs(esbc[0])
     _, corr = spp(obs, read_nav(esbc[1]), ("GPS",))
@@ -156,7 +156,7 @@ def test_cli_done_when_ramp_detected_and_excluded(esbc, capsys):
 def test_batched_spp_equals_a_per_epoch_loop(esbc):
     import dataclasses
 
-    from raimcore.spp import correct, solve
+    from raimcore.sky.spp import correct, solve
 
     obs, nav = read_obs(esbc[0]), read_nav(esbc[1])
     batched = solve(correct(obs, nav)).pos_ecef_m
@@ -174,8 +174,8 @@ def test_real_errors_are_time_correlated_and_pf_llr_needs_that_in_its_threshold(
     correlated over 30 s. PF-LLR calibrated on white noise false-alarms at most armed
     epochs; calibrated with the measured correlation time it holds, and a slow ramp is
     still caught and isolated."""
-    from raimcore.recording import error_statistics
     from raimcore.scenario import build_epoch_data
+    from raimcore.sky.recording import error_statistics
 
     s = recording_scenario(*esbc, algorithm="pf-llr")
     data = build_epoch_data(s)

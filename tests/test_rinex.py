@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import rinex_snippets as snip
 
-from raimcore.ephemeris import from_nav, sat_pos_clock
 from raimcore.geometry import ecef_to_geodetic
-from raimcore.rinex import RinexError, gps_seconds, read_nav, read_obs
+from raimcore.sky.ephemeris import from_nav, sat_pos_clock
+from raimcore.sky.rinex import RinexError, gps_seconds, read_nav, read_obs
 
 T0 = gps_seconds(2020, 6, 25, 0, 0, 0)
 

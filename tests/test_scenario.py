@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from raimcore.faults import Fault
+from raimcore.measure.faults import Fault
 from raimcore.scenario import list_scenarios, load_scenario, parse_value, run_scenario
 
 

@@ -15,12 +15,12 @@ __all__ = ["AlgorithmOutput", "AlgorithmSpec", "EpochData", "get", "names", "reg
 # One line per algorithm module (keep one per line: parallel branches add lines here).
 _MODULES = [
     "parity_fde",
-    "mss",
+    "mss_fde",
     "groupfusion_gf",
     "groupfusion_rs",
     "groupfusion_qv",
     "pf_llr",
-    "ekf",
+    "ekf_nis",
 ]
 
 _loaded = False

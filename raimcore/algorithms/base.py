@@ -41,7 +41,7 @@ class EpochData:
     az_rad, el_rad : (E, S) azimuth and elevation from the true receiver position.
     sigma_m : (E, S) 1-sigma of each pseudorange as the algorithms should assume (m).
     noise : the noise model that generated the pseudoranges (has ``logpdf``), see
-        :mod:`raimcore.noise`.
+        :mod:`raimcore.measure.noise`.
     pos_rx_true_ecef_m : (E, 3) true receiver position (m), for errors only.
     vel_rx_true_ecef_mps : (E, 3) true receiver velocity (m/s).
     fault_bias_m : (E, S) injected fault biases (truth, m); 0 where no fault.

@@ -1,91 +1,168 @@
-"""EKF baseline with an innovation chi-square RAIM test and exclusion (seed 002 baseline).
+"""Extended Kalman filter on the receiver state with an innovation chi-square RAIM test.
 
-Two Kalman filters with the particle filters' state model run side by side: a plain EKF
-that uses every satellite (the paper's baseline: ``pos_before``), and a protected EKF
-whose normalised innovation squared is tested against ``chi2.ppf(1 - p_fa, m)``; on an
-alarm it leaves the satellite with the largest normalised innovation out of that epoch's
-update (``pos_after``, ``excluded``). The filters assume Gaussian noise with the noise
-model's standard deviation, so under heavy tails the nominal ``p_fa`` is not met.
+The baseline of seed 002 (spec section 3, "Baseline"): the same state and process model as
+the particle filters (:class:`raimcore.algorithms.pf.ProcessModel`: ECEF position, optional
+velocity, one clock per system), the measurement noise taken as Gaussian with the noise model's
+standard deviation. Batched over a leading axis of independent realisations ``R``.
+
+Test: the normalised innovation squared ``NIS = nu^T S^-1 nu`` with ``S = H P H^T + R`` is
+chi-square with ``m`` degrees of freedom without a fault (Gaussian noise); alarm when it
+exceeds ``chi2.ppf(1 - p_fa, m)``. With ``exclude=True`` the satellite with the largest
+normalised innovation ``|nu_i| / sqrt(S_ii)`` is left out of that epoch's update.
 """
 
 from __future__ import annotations
 
-import math
+from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
-from ..ekf import run_ekf
-from .base import (
-    STATUS_NOT_ARMED,
-    STATUS_OK,
-    STATUS_UNAVAILABLE,
-    AlgorithmOutput,
-    AlgorithmSpec,
-    EpochData,
-    register,
-)
-from .pf_llr import noise_scale, process_model
+from ..lsq import clock_columns, wls
+from .pf import ProcessModel, availability, cov_enu_to_ecef
 
-SUMMARY = (
-    "A Kalman filter follows the receiver position and clock, assuming Gaussian noise. "
-    "Each epoch it predicts the pseudoranges; the innovations (measured minus predicted), "
-    "normalised by their predicted spread, add up to a chi-square statistic with one "
-    "degree of freedom per satellite. Above the threshold set by the false-alarm "
-    "probability, the satellite with the largest normalised innovation is left out of "
-    "the update. Heavy-tailed noise breaks the Gaussian assumption: more false alarms, "
-    "and an unprotected filter is dragged by a fault."
-)
-
-EQUATIONS = r"""
-- Predict $\hat x_k^- = F \hat x_{k-1}$, $P_k^- = F P_{k-1} F^T + Q$
-- Innovation $\nu = \rho - h(\hat x_k^-)$, $S = H P_k^- H^T + R$, $R = \mathrm{diag}(\sigma_i^2)$
-- Test $\mathrm{NIS} = \nu^T S^{-1} \nu \sim \chi^2_m$, alarm when
-  $\mathrm{NIS} > \chi^2_{m}{}^{-1}(1 - P_{fa})$
-- Exclude $\hat\jmath = \arg\max_i |\nu_i| / \sqrt{S_{ii}}$, then
-  $K = P H^T S^{-1}$, $\hat x_k = \hat x_k^- + K \nu$
-"""
+__all__ = ["EkfRun", "run_ekf"]
 
 
-def run(data: EpochData, options: dict) -> AlgorithmOutput:
-    """Run the plain and the protected EKF on every epoch (options: the process model,
-    shared with ``pf-llr``: ``model``, ``q_pos_mps``, ``q_vel_mps2``, ``q_clk_mps``)."""
-    model = process_model(options, len(data.systems))
-    std = data.noise.std_m
-    sigma = std if math.isfinite(std) else data.noise.sigma_m
-    scale = noise_scale(data)  # a recording's elevation model, as the snapshot tests use
-    if scale is not None:
-        sigma = sigma * scale
-    args = (data.pos_sv_ecef_m, data.pr_m[None], data.used, data.t_s, data.sys_idx,
-            len(data.systems), sigma, model, data.p_fa)
-    plain = run_ekf(*args, exclude=False)
-    prot = run_ekf(*args, exclude=True)
-    avail = prot.available
-    k0 = np.flatnonzero(avail)[:1]
-    armed = avail.copy()
-    armed[k0] = False  # the first epoch is the least-squares start, nothing to test
-    status = np.where(armed, STATUS_OK, np.where(avail, STATUS_NOT_ARMED,
-                                                 STATUS_UNAVAILABLE)).astype(object)
-    alarm = armed & prot.alarm[0]
-    ok = avail[:, None]
-    return AlgorithmOutput(
-        status=status, statistic=np.where(armed, prot.nis[0], np.nan),
-        threshold=np.where(armed, prot.threshold, np.nan), alarm=alarm,
-        pos_before_ecef_m=np.where(ok, plain.estimate[0, :, :3], np.nan),
-        pos_after_ecef_m=np.where(ok, prot.estimate[0, :, :3], np.nan),
-        excluded=prot.excluded[0] & alarm[:, None],
-        isolated=np.where(alarm, prot.worst[0], -1),
-        per_sat={"norm_innovation": prot.norm_innov[0]},
-        columns={"nis_plain": plain.nis[0]},
-    )
+@dataclass(frozen=True)
+class EkfRun:
+    """An EKF run over ``E`` epochs for ``R`` realisations, ``S`` satellites.
+
+    Attributes
+    ----------
+    estimate : (R, E, D) state after the update (NaN before the first fix).
+    nis : (R, E) normalised innovation squared over the used satellites (NaN where no test).
+    threshold : (E,) ``chi2.ppf(1 - p_fa, m)``.
+    norm_innov : (R, E, S) ``|nu_i| / sqrt(S_ii)`` (NaN where unused).
+    alarm : (R, E) bool, ``nis > threshold``.
+    worst : (R, E) int, the satellite with the largest normalised innovation (-1 if none).
+    excluded : (R, E, S) bool, left out of the update (``exclude=True`` only).
+    available : (E,) bool, ``m >= n + 1`` and the filter started.
+    """
+
+    estimate: np.ndarray
+    nis: np.ndarray
+    threshold: np.ndarray
+    norm_innov: np.ndarray
+    alarm: np.ndarray
+    worst: np.ndarray
+    excluded: np.ndarray
+    available: np.ndarray
 
 
-SPEC = register(AlgorithmSpec(
-    name="ekf",
-    label="EKF innovation test (seed 002 baseline)",
-    summary=SUMMARY,
-    equations=EQUATIONS,
-    run=run,
-    options={"model": "static", "q_pos_mps": 0.1, "q_vel_mps2": 0.5, "q_clk_mps": 0.1},
-    reference="Baseline of seed 002: extended Kalman filter with the particle filters' state "
-              "model and an innovation chi-square RAIM test.",
-))
+def _transition(model: ProcessModel, dt_s: float):
+    """State transition F (D, D) and process covariance Q (D, D) of ``model`` over ``dt_s``."""
+    d = model.dim
+    f = np.eye(d)
+    q = np.zeros(d)
+    q[:3] = model.q_pos_mps**2 * dt_s
+    if model.kind == "cv":
+        f[:3, 3:6] = dt_s * np.eye(3)
+        q[3:6] = model.q_vel_mps2**2 * dt_s
+    q[model.clk0:] = model.q_clk_mps**2 * dt_s
+    return f, np.diag(q)
+
+
+def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
+            model: ProcessModel, p_fa: float, *, exclude: bool,
+            init_inflate: float = 3.0) -> EkfRun:
+    """Run the EKF and its innovation test over every epoch.
+
+    Parameters
+    ----------
+    pos_sv_ecef_m : (E, S, 3) satellite positions (m).
+    pr_m : (R, E, S) pseudoranges (m), NaN where unused.
+    used : (E, S) bool.
+    t_s : (E,) epoch times (s).
+    sys_idx : (S,) system index; n_sys : number of clocks (``model.n_clk``).
+    sigma_m : measurement standard deviation the filter assumes (m): a number, or (E, S)
+        per satellite (a recording's elevation model); ``R = diag(sigma_m^2)``.
+    model : process model.
+    p_fa : false-alarm probability per epoch of the chi-square test.
+    exclude : on an alarm, leave the satellite with the largest normalised innovation out
+        of the update.
+    init_inflate : factor on the first fix's standard deviations for the initial P.
+
+    Returns
+    -------
+    EkfRun. The filter starts at the first epoch with ``m >= n + 1`` from a weighted least
+    squares fix; epochs with too few satellites only predict.
+    """
+    sv = np.asarray(pos_sv_ecef_m, dtype=float)
+    pr = np.asarray(pr_m, dtype=float)
+    used = np.asarray(used, dtype=bool)
+    r_n, e_n, s_n = pr.shape
+    d = model.dim
+    var = np.broadcast_to(np.asarray(sigma_m, dtype=float) ** 2, (e_n, s_n))
+    cc = clock_columns(sys_idx, n_sys)
+    n_states, available = availability(used, sys_idx, n_sys)
+    dof = used.sum(-1)
+    threshold = np.where(available, stats.chi2.isf(p_fa, np.maximum(dof, 1)), np.nan)
+    est = np.full((r_n, e_n, d), np.nan)
+    nis = np.full((r_n, e_n), np.nan)
+    norm_innov = np.full((r_n, e_n, s_n), np.nan)
+    worst = np.full((r_n, e_n), -1)
+    excluded = np.zeros((r_n, e_n, s_n), dtype=bool)
+    k0 = -1
+    for k in np.flatnonzero(available):
+        fix = wls(np.broadcast_to(sv[k], (r_n, s_n, 3)), pr[:, k],
+                  np.broadcast_to(np.where(used[k], 1.0 / var[k], 0.0), (r_n, s_n)),
+                  sys_idx, n_sys)
+        if fix.available.all():
+            k0 = int(k)
+            break
+    if k0 < 0:
+        return EkfRun(est, nis, threshold, norm_innov, np.zeros((r_n, e_n), bool), worst,
+                      excluded, np.zeros(e_n, bool))
+    available[:k0] = False
+    x = np.zeros((r_n, d))
+    x[:, :3] = fix.pos_ecef_m
+    x[:, model.clk0:] = np.nan_to_num(fix.clock_m)
+    # Initial P: the fix's covariance (ENU + clocks, rotated to ECEF), inflated.
+    c = cov_enu_to_ecef(fix.pos_ecef_m, fix.cov_enu) * init_inflate**2
+    p = np.zeros((r_n, d, d))
+    idx = np.r_[0:3, model.clk0:d]
+    p[:, idx[:, None], idx[None, :]] = c
+    if model.kind == "cv":
+        p[:, 3:6, 3:6] = np.eye(3) * 100.0  # (10 m/s)^2: velocity unknown at start
+    est[:, k0] = x
+    eye = np.eye(d)
+    for k in range(k0 + 1, e_n):
+        f, q = _transition(model, t_s[k] - t_s[k - 1])
+        x = x @ f.T
+        p = f @ p @ f.T + q
+        if not available[k]:
+            est[:, k] = x
+            continue
+        dvec = sv[k][None] - x[:, None, :3]
+        rng_m = np.linalg.norm(dvec, axis=-1)
+        h = np.zeros((r_n, s_n, d))
+        h[..., :3] = -dvec / rng_m[..., None]
+        h[..., model.clk0:] = cc
+        u = used[k][None, :] & np.ones((r_n, 1), bool)
+        nu = np.where(u, np.nan_to_num(pr[:, k]) - rng_m - x[:, model.clk0:] @ cc.T, 0.0)
+        h = np.where(u[..., None], h, 0.0)
+        s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.diag(var[k])
+        s_inv = np.linalg.inv(s_mat)
+        nis[:, k] = np.einsum("rs,rst,rt->r", nu, s_inv, nu)
+        ni = np.abs(nu) / np.sqrt(np.diagonal(s_mat, axis1=1, axis2=2))
+        norm_innov[:, k] = np.where(u, ni, np.nan)
+        worst[:, k] = np.argmax(np.where(u, ni, -1.0), axis=-1)
+        if exclude:
+            drop = (nis[:, k] > threshold[k])[:, None] & (np.arange(s_n) == worst[:, k:k + 1])
+            # An exclusion must leave m >= n for the update.
+            drop &= (u.sum(-1) - 1 >= n_states[k])[:, None]
+            excluded[:, k] = drop
+            u = u & ~drop
+            nu = np.where(u, nu, 0.0)
+            h = np.where(u[..., None], h, 0.0)
+            s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.diag(var[k])
+            s_inv = np.linalg.inv(s_mat)
+        gain = p @ np.swapaxes(h, -1, -2) @ s_inv
+        x = x + np.einsum("rds,rs->rd", gain, nu)
+        ikh = eye - gain @ h
+        # Joseph form keeps P symmetric positive definite.
+        p = ikh @ p @ np.swapaxes(ikh, -1, -2) + (gain * var[k]) @ np.swapaxes(gain, -1, -2)
+        est[:, k] = x
+    alarm = available[None] & (nis > threshold[None])
+    return EkfRun(est, nis, threshold, norm_innov, alarm, worst, excluded, available)

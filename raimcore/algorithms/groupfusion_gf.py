@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from .._validate import check_choice, check_range
-from ..groupfusion import WEIGHTS, gf_isolate, select_groups
 from ._groupfusion_common import groups_option, run_multi_fault
 from .base import AlgorithmSpec, EpochData, register
+from .groupfusion import WEIGHTS, gf_isolate, select_groups
 
 SUMMARY = (
     "Several satellites may be faulty at once. The visible satellites are split into many "

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 from .._validate import check_choice, check_range
-from ..groupfusion import qv_isolate, select_groups
 from ._groupfusion_common import groups_option, run_multi_fault
 from .base import AlgorithmSpec, EpochData, register
+from .groupfusion import qv_isolate, select_groups
 
 SUMMARY = (
     "The quality value method tests the same groups as GF but listens only to the groups "

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._validate import check_int
-from ..groupfusion import rs_isolate
 from ._groupfusion_common import run_multi_fault
 from .base import AlgorithmSpec, EpochData, register
+from .groupfusion import rs_isolate
 
 SUMMARY = (
     "Random search looks for a consistent subset first: it draws random groups of 4 + q "

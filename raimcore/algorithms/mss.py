@@ -1,211 +1,568 @@
-"""Multiple solution separation with barometric aiding (seed 001) as a registered algorithm.
+"""Multiple solution separation (MSS) with barometric aiding, and protection levels.
 
-Thin orchestration over :mod:`raimcore.mss`: a GNSS-only batched WLS gives the
-linearisation point (:func:`raimcore.lsq.wls`), the pseudorange residuals there and the
-local-frame geometry; the barometric row ``[0, 0, 1, 0, ...]`` with innovation
-``h_baro - h(x_lin)`` is appended when the scenario has ``baro = true``. The kernels then
-give, for every epoch at once, the MSS detection, identification, exclusion and PLs with
-the scenario's baro setting, the MSS PLs without baro, and the classic slope-based PLs of
-the chi-square (SSE) detector without baro (the paper's "classic RAIM").
+Pure batched kernels on plain arrays (spec section 2, seed 001). The model is linear in a
+local level frame: ``z = H dx + e``, ``e ~ N(0, R)``, ``W = R^-1`` diagonal, states
+``dx = (dE, dN, dU, clock_1, ..., clock_q)``. Rows of ``H`` are satellites ``[-u_enu, c]``
+and optionally one barometric row ``[0, 0, 1, 0, ...]`` (spec section 2, "Model").
 
-The model is linear about the WLS solution: sub-solutions are ``X_i = X0 - dX_i`` in the
-ENU frame of that point. The neglected second-order term is about ``offset^2 / range``,
-below 1 m for offsets of a few km (a 1000 m fault on a weak geometry).
+Everything is vectorised over epochs (any leading batch axes) and satellites. The
+sub-solutions (satellite ``i`` removed, baro kept) are rank-one downdates of the main
+solution (Sherman-Morrison), and the sub-sub-solutions (``k`` and ``j`` removed) are
+rank-one downdates of the sub-solutions, so nothing loops over satellites:
+
+* leverage ``l_i = w_i h_i^T P0 h_i``, ``v_i = P0 h_i``;
+* ``P_i = P0 + w_i v_i v_i^T / (1 - l_i)``, so ``dP_i = P_i - P0 = w_i v_i v_i^T / (1 - l_i)``;
+* ``dX_i = X0 - X_i = w_i r_i v_i / (1 - l_i)`` with ``r = z - H X0`` the main residuals.
+
+These equal the spec's ``X_i = S_i Z`` and ``dP_i = (S0 - S_i) R (S0 - S_i)^T`` exactly
+(``tests/test_mss.py`` checks it against explicit batched solves).
+
+A consequence worth knowing: removing one measurement moves the solution along the single
+direction ``v_i``, so ``dP_i`` has rank one and the horizontal test ``d_i > T_i`` with
+``T_i = sqrt(lam_max(dP_i,EN)) k_fa`` is the normalised-residual test
+``sqrt(w_i) |r_i| / sqrt(1 - l_i) > k_fa``; the vertical test is the same inequality
+whenever ``v_i[U] != 0``. The code nevertheless evaluates the spec's formulas as written.
+
+References
+----------
+.. [1] Chen W., Yang Z., Gu S., Wang Y., barometric-altimeter-aided aircraft autonomous
+   integrity monitoring by multiple solution separation (seed 001, Chinese original).
+.. [2] Brown R. G., "A baseline GPS RAIM scheme and a note on the equivalence of three RAIM
+   methods", Navigation 39(3), 1992.
+.. [3] Walter T., Enge P., "Weighted RAIM for precision approach", ION GPS 1995.
+.. [4] Brenner M., "Integrated GPS/inertial fault detection availability", Navigation
+   43(2), 1996 (solution separation).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import lru_cache
+
 import numpy as np
+from scipy import optimize, stats
 
-from .. import mss as kernel
-from .._validate import check_choice
-from ..geometry import ecef_to_geodetic, enu_to_ecef
-from ..lsq import wls
-from .base import AlgorithmOutput, AlgorithmSpec, EpochData, register
+from .._validate import check_probability
 
-IDENT_RULES = ("unique", "rank")
+# Per-epoch status codes (same strings as raimcore.algorithms.base.STATUS_*).
+STATUS_OK = "ok"
+STATUS_NO_ISOLATION = "detect-only"
+STATUS_UNAVAILABLE = "unavailable"
 
-SUMMARY = (
-    "Solution separation compares the position from all measurements (the main solution) "
-    "with the positions obtained by leaving out one satellite at a time (sub-solutions). "
-    "Without a fault they differ only by noise whose covariance is known (dP_i = P_i - P_0), "
-    "so each separation is tested against a threshold set from the false-alarm probability. "
-    "To name the faulty satellite each sub-solution is in turn checked against its own "
-    "sub-sub-solutions: the sub-solution that left out the faulty satellite is consistent. "
-    "A barometric altimeter adds one height measurement: it shrinks the vertical "
-    "protection level and, with only 5 satellites, gives the second redundant measurement "
-    "that identification needs. Protection levels bound the position error that a just "
-    "missed fault could cause: HPL/VPL = separation threshold + missed-detection margin."
-)
+# Identification outcomes (spec section 2, "Identification").
+IDENT_NONE = "none"  # no detection, nothing to identify
+IDENT_UNIQUE = "unique"  # exactly one candidate passed all its sub-sub tests
+IDENT_AMBIGUOUS = "ambiguous"  # several candidates passed
+IDENT_MULTIPLE = "multiple-fault"  # no candidate passed
+IDENT_UNAVAILABLE = "unavailable"  # detection fired but too few measurements to identify
 
-EQUATIONS = r"""
-- Stacked model: $Z = [y;\ h_e - h_b]$, $H = [G';\ 0\ 0\ 1\ 0]$, $W = R^{-1}$,
-  $R = \mathrm{diag}(\sigma^2,\dots,\sigma_b^2)$
-- Main solution: $X_0 = S_0 Z$, $S_0 = (H^T W H)^{-1} H^T W$, $P_0 = (H^T W H)^{-1}$
-- Sub-solution $i$ (satellite $i$ out, baro kept): $X_i = S_i Z$, $dX_i = X_0 - X_i$,
-  $dP_i = P_i - P_0$
-- Test: $d_i = \lVert dX_i^{EN} \rVert > T_i = \sqrt{\lambda_{max}(dP_i^{EN})}\,
-  Q^{-1}(P_{fa}/2m)$; vertically $|dX_i^U| > \sqrt{dP_i^{UU}}\,Q^{-1}(P_{fa}/2m)$
-- Identification: $k$ is faulty if $X_k$ passes every test against $X_{k,j}$;
-  ranking extension: $\arg\min_k \max_j d_{kj}/T_{kj}$
-- $HPL = \max_i \big(T_i + \sqrt{\lambda_{max}(P_i^{EN})}\,Q^{-1}(P_{md})\big)$
-- $VPL = \max_i \big(\sqrt{dP_i^{UU}}\,Q^{-1}(P_{fa}/2m) + \sqrt{P_i^{UU}}\,Q^{-1}(P_{md})\big)$
-- Classic (SSE) slope PL: $HPL = \max_i \mathrm{Hslope}_i \sqrt{\lambda_{det}}$ with
-  $F_{\chi^2_{m-n}(\lambda_{det})}\big(\chi^{2\,-1}_{m-n}(1-P_{fa})\big) = P_{md}$
-"""
+# A sub-solution whose leverage is this close to 1 is unobservable (its satellite carries
+# no redundancy); its separation covariance would be infinite.
+_LEVERAGE_TOL = 1e-9
+# Normal matrices with a larger condition number are treated as singular geometry.
+_COND_MAX = 1e12
 
 
-def run(data: EpochData, options: dict) -> AlgorithmOutput:
-    """Run MSS (with the scenario's baro setting), MSS without baro and classic RAIM.
+@dataclass(frozen=True)
+class MssResult:
+    """Solution separation of every epoch of a batch. Shapes: batch ``B...``, ``M`` rows.
 
-    Options
-    -------
-    mss_ident_rule : ``"unique"`` (paper: exclude only when exactly one candidate passes)
-        or ``"rank"`` (spec extension: also pick the best-ranked candidate when several
-        pass). After a multiple-fault verdict the same rule applies to satellite pairs
-        (second level, redundancy >= 3) and both satellites of the pair are excluded.
+    Attributes
+    ----------
+    status : (B...) str, ``"ok"``, ``"detect-only"`` or ``"unavailable"``.
+    dx0_m : (B..., n) main solution (local frame E, N, U, clocks; m).
+    p0_m2 : (B..., n, n) its covariance.
+    dx_sep_m : (B..., M, n) separations ``X0 - X_i`` (NaN for rows that are not candidate
+        satellites or whose sub-solution is unobservable).
+    dp_h_lam_m2, dp_u_m2 : (B..., M) largest eigenvalue of the E/N block of ``dP_i`` and
+        its U/U element.
+    p_h_lam_m2, p_u_m2 : (B..., M) the same for ``P_i``.
+    d_h_m, t_h_m, d_v_m, t_v_m : (B..., M) horizontal/vertical separations and thresholds.
+    ratio : (B..., M) ``max(d_h/T_h, d_v/T_v)`` (NaN where not a candidate).
+    alarm : (B...) bool, any test failed.
+    ident_status : (B...) str, one of the ``IDENT_*`` codes.
+    ident_pass : (B..., M) bool, candidate ``k`` passed all its sub-sub tests.
+    ident_score : (B..., M) ``max_j max(d_kj/T_kj)`` over H and V (ranking extension).
+    ident_unique : (B...) int, row of the unique candidate, -1 otherwise.
+    ident_rank : (B...) int, row with the smallest ``ident_score`` when the status is
+        unique or ambiguous, -1 otherwise.
+    hpl_m, vpl_m : (B...) MSS protection levels (NaN when unavailable).
+    k_fa : (B...) ``Q^-1(p_fa / (2 m_sat))``.
+    m_sat : (B...) int, number of satellites used; ``n_states`` the states estimated.
+    pairs : (P, 2) int, the candidate row pairs of the second identification level.
+    pair_pass : (B..., P) bool, after a multiple-fault verdict: the solution without pair
+        ``p`` passed every test against its one-more-removed solutions (False elsewhere).
+    pair_score : (B..., P) its worst normalised separation (NaN where not tested).
+    pair_dx_m : (B..., P, n) the solution without pair ``p`` (NaN where not tested).
+    ident_pair_unique, ident_pair_rank : (B...) int, index into ``pairs`` of the unique
+        passing pair / of the best-ranked pair when at least one passes; -1 otherwise.
     """
-    rule = check_choice("mss_ident_rule", options.get("mss_ident_rule", "unique"), IDENT_RULES)
-    n_ep, n_sat = data.pr_m.shape
-    w_sat = np.where(data.used, 1.0 / data.sigma_m**2, 0.0)
-    lin = wls(data.pos_sv_ecef_m, data.pr_m, w_sat, data.sys_idx, len(data.systems))
-    ok = lin.available
-    pos_lin = np.where(ok[:, None], lin.pos_ecef_m, 0.0)
-    has_baro = data.baro_alt_m is not None and data.sigma_baro_m is not None
 
-    # Compact the used satellites to the front of each epoch (the kernels' cost grows with
-    # the square of the row count, and most of a constellation is below the horizon).
-    order = np.argsort(~(w_sat > 0), axis=1, kind="stable")
-    m_max = max(int((w_sat > 0).sum(axis=1).max()), 1)
-    slot = order[:, :m_max]  # (E, m_max) satellite index of each compacted row
-    h = np.take_along_axis(lin.h_enu, slot[..., None], axis=1)
-    h = np.concatenate([h, np.zeros((n_ep, 1, h.shape[-1]))], axis=1)
-    h[:, -1, 2] = 1.0  # baro row [0, 0, 1, 0, ...] (spec section 2)
-    w_gnss = np.zeros((n_ep, m_max + 1))
-    w_gnss[:, :m_max] = np.take_along_axis(w_sat, slot, axis=1)
-    w_gnss[~ok] = 0.0  # no linearisation point: the epoch is unavailable
-    z = np.zeros((n_ep, m_max + 1))
-    z[:, :m_max] = np.nan_to_num(np.take_along_axis(lin.resid_m, slot, axis=1))
-    w_baro = w_gnss.copy()
-    if has_baro:
-        _, _, h_lin_m = ecef_to_geodetic(pos_lin)
-        z[:, -1] = np.asarray(data.baro_alt_m, dtype=float) - h_lin_m  # h_e - h_b innovation
-        w_baro[:, -1] = np.where(ok, 1.0 / data.sigma_baro_m**2, 0.0)
-    is_sat = np.r_[np.ones(m_max, dtype=bool), False]
+    status: np.ndarray
+    dx0_m: np.ndarray
+    p0_m2: np.ndarray
+    dx_sep_m: np.ndarray
+    dp_h_lam_m2: np.ndarray
+    dp_u_m2: np.ndarray
+    p_h_lam_m2: np.ndarray
+    p_u_m2: np.ndarray
+    d_h_m: np.ndarray
+    t_h_m: np.ndarray
+    d_v_m: np.ndarray
+    t_v_m: np.ndarray
+    ratio: np.ndarray
+    alarm: np.ndarray
+    ident_status: np.ndarray
+    ident_pass: np.ndarray
+    ident_score: np.ndarray
+    ident_unique: np.ndarray
+    ident_rank: np.ndarray
+    hpl_m: np.ndarray
+    vpl_m: np.ndarray
+    k_fa: np.ndarray
+    m_sat: np.ndarray
+    n_states: np.ndarray
+    pairs: np.ndarray
+    pair_pass: np.ndarray
+    pair_score: np.ndarray
+    pair_dx_m: np.ndarray
+    ident_pair_unique: np.ndarray
+    ident_pair_rank: np.ndarray
 
-    main = kernel.mss(h, z, w_baro, is_sat, data.p_fa, data.p_md)
-    nobaro = main if not has_baro else kernel.mss(h, z, w_gnss, is_sat, data.p_fa, data.p_md)
-    classic = kernel.classic_raim(h, z, w_gnss, is_sat, data.p_fa, data.p_md)
 
-    rows = np.arange(n_ep)
+@dataclass(frozen=True)
+class ClassicResult:
+    """Classic snapshot RAIM (weighted SSE chi-square test) and slope-based PLs.
 
-    def to_sat(row):
-        """Compacted row index (E,) -> satellite index, -1 stays -1."""
-        return np.where(row >= 0, slot[rows, np.maximum(row, 0)], -1)
+    Attributes
+    ----------
+    status : (B...) str, ``"ok"``, ``"detect-only"`` or ``"unavailable"``.
+    sse : (B...) weighted sum of squared residuals ``r^T W r`` (chi2(dof) without fault).
+    threshold : (B...) ``chi2.isf(p_fa, dof)``.
+    alarm : (B...) bool.
+    dof : (B...) int, ``m - n``.
+    lam_det : (B...) non-centrality detected with probability ``1 - p_md``.
+    hslope_m, vslope_m : (B..., M) slopes (m of position error per unit sqrt(noncentrality));
+        NaN for non-candidate rows.
+    hpl_m, vpl_m : (B...) ``max_i slope_i * sqrt(lam_det)``.
+    """
 
-    def scatter(a, fill=np.nan):
-        """Compacted per-row array (E, m_max + 1) -> per-satellite (E, S)."""
-        out = np.full((n_ep, n_sat), fill, dtype=np.asarray(a).dtype)
-        np.put_along_axis(out, slot, a[:, :m_max], axis=1)
-        return out
+    status: np.ndarray
+    sse: np.ndarray
+    threshold: np.ndarray
+    alarm: np.ndarray
+    dof: np.ndarray
+    lam_det: np.ndarray
+    hslope_m: np.ndarray
+    vslope_m: np.ndarray
+    hpl_m: np.ndarray
+    vpl_m: np.ndarray
 
-    pick_row = main.ident_unique if rule == "unique" else main.ident_rank
-    pick = to_sat(pick_row)
-    valid = main.status != kernel.STATUS_UNAVAILABLE
-    dx0 = np.where(valid[:, None], main.dx0_m[:, :3], np.nan)
-    pos_before = enu_to_ecef(dx0, pos_lin)
-    sep_pick = main.dx_sep_m[rows, np.maximum(pick_row, 0), :3]
-    dx_after = np.where((pick_row >= 0)[:, None], dx0 - sep_pick, dx0)
-    excluded = np.zeros((n_ep, n_sat), dtype=bool)
-    excluded[rows[pick >= 0], pick[pick >= 0]] = True
-    # Second level after a multiple-fault verdict: exclude the identified pair.
-    pair = main.ident_pair_unique if rule == "unique" else main.ident_pair_rank
-    has_pair = pair >= 0
-    pair_sats = [to_sat(np.where(has_pair, main.pairs[np.maximum(pair, 0), c], -1))
-                 for c in (0, 1)]
-    for sat in pair_sats:
-        excluded[rows[has_pair], sat[has_pair]] = True
-    dx_pair = main.pair_dx_m[rows, np.maximum(pair, 0), :3]
-    dx_after = np.where(has_pair[:, None], dx_pair, dx_after)
-    pos_after = enu_to_ecef(dx_after, pos_lin)
 
-    ratio = scatter(main.ratio)
-    statistic = np.where(valid, np.nanmax(np.where(np.isnan(ratio), -np.inf, ratio), axis=1),
-                         np.nan)
-    statistic = np.where(np.isinf(statistic), np.nan, statistic)
-    # The best-ranked candidate is reported (isolated) whenever identification ran, so a
-    # "unique" user still sees which satellite the ranking would name.
-    rank = to_sat(main.ident_rank)
-    isolated = np.where(pick >= 0, pick, rank)
-    names = np.array(data.sat_names + ("",), dtype=object)
-    cols = {
-        "hpl_m": main.hpl_m,
-        "vpl_m": main.vpl_m,
-        "available": kernel.availability(main.hpl_m, main.vpl_m, data.hal_m, data.val_m),
-        "hpl_nobaro_m": nobaro.hpl_m,
-        "vpl_nobaro_m": nobaro.vpl_m,
-        "available_nobaro": kernel.availability(nobaro.hpl_m, nobaro.vpl_m, data.hal_m,
-                                                data.val_m),
-        "hpl_classic_m": classic.hpl_m,
-        "vpl_classic_m": classic.vpl_m,
-        "classic_statistic": classic.sse / classic.threshold,
-        "classic_alarm": classic.alarm,
-        "classic_status": classic.status.astype(object),
-        "nobaro_alarm": nobaro.alarm,
-        "nobaro_status": nobaro.status.astype(object),
-        "baro_used": np.full(n_ep, has_baro),
-        "ident_status": main.ident_status.astype(object),
-        "ident_unique": names[to_sat(main.ident_unique)],
-        "ident_rank": names[rank],
-        "ident_pair_unique": _pair_names(main, main.ident_pair_unique, to_sat, names),
-        "ident_pair_rank": _pair_names(main, main.ident_pair_rank, to_sat, names),
-    }
-    alarm_col = main.alarm[:, None]
-    per_sat = {
-        "sep_ratio": ratio,
-        "sep_ratio_h": scatter(_ratio(main.d_h_m, main.t_h_m)),
-        "sep_ratio_v": scatter(_ratio(main.d_v_m, main.t_v_m)),
-        "sep_h_m": scatter(main.d_h_m),
-        "sep_threshold_h_m": scatter(main.t_h_m),
-        "sep_v_m": scatter(main.d_v_m),
-        "sep_threshold_v_m": scatter(main.t_v_m),
-        "ident_score": np.where(alarm_col, scatter(main.ident_score), np.nan),
-        "ident_pass": scatter(main.ident_pass, fill=False) & alarm_col,
-    }
-    return AlgorithmOutput(
-        status=main.status.astype(object),
-        statistic=statistic,
-        threshold=np.where(valid, 1.0, np.nan),
-        alarm=main.alarm,
-        pos_before_ecef_m=pos_before,
-        pos_after_ecef_m=pos_after,
-        excluded=excluded,
-        isolated=isolated,
-        per_sat=per_sat,
-        columns=cols,
+def geometry_rows(u_enu, sys_idx, n_sys: int, *, baro: bool) -> np.ndarray:
+    """Local-frame geometry ``H`` with an optional barometric row last.
+
+    Parameters
+    ----------
+    u_enu : (..., S, 3) unit lines of sight receiver -> satellite (ENU).
+    sys_idx : (S,) int, system of each satellite (clock column ``3 + sys_idx``).
+    n_sys : number of systems (clock states).
+    baro : append the row ``[0, 0, 1, 0, ...]`` (spec section 2, "Model").
+
+    Returns
+    -------
+    (..., S + baro, 3 + n_sys) rows ``[-u, c]`` (and the baro row).
+    """
+    u = np.asarray(u_enu, dtype=float)
+    clock = np.zeros((u.shape[-2], n_sys))
+    clock[np.arange(u.shape[-2]), np.asarray(sys_idx)] = 1.0
+    h = np.concatenate([-u, np.broadcast_to(clock, u.shape[:-1] + (n_sys,))], axis=-1)
+    if baro:
+        row = np.zeros(3 + n_sys)
+        row[2] = 1.0  # He - Hb = dU + e_b (spec section 2)
+        h = np.concatenate([h, np.broadcast_to(row, h.shape[:-2] + (1, 3 + n_sys))], axis=-2)
+    return h
+
+
+def _normal_inverse(h, w):
+    """``P0 = (H^T W H)^-1`` over the batch, with absent clock states pinned.
+
+    Columns no used row touches (a system with no satellite in view) are decoupled with a
+    unit diagonal so the rest stays solvable; their count is removed from ``n_states``.
+    Returns ``p0 (B, n, n)``, ``n_states (B,)`` and ``ok (B,)`` (False: singular geometry).
+    """
+    a = np.einsum("bmi,bm,bmj->bij", h, w, h)
+    active = np.any((h != 0.0) & (w[..., None] > 0.0), axis=-2)  # (B, n)
+    n = h.shape[-1]
+    a = a + np.einsum("bi,ij->bij", (~active).astype(float), np.eye(n))
+    cond = np.linalg.cond(a)
+    ok = np.isfinite(cond) & (cond < _COND_MAX)
+    a[~ok] = np.eye(n)
+    p0 = np.linalg.inv(a)
+    p0 = p0 * active[:, :, None] * active[:, None, :]  # pinned states carry no variance
+    return p0, active.sum(axis=-1), ok
+
+
+def _lam_max_2x2(a, b, c):
+    """Largest eigenvalue of the symmetric block ``[[a, b], [b, c]]`` (closed form)."""
+    return 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b**2)
+
+
+def _safe_ratio(d, t):
+    """``d / t`` with ``0 / 0 = 0`` (a separation with no horizontal or vertical part)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = d / t
+    return np.where((t == 0.0) & (d == 0.0), 0.0, r)
+
+
+def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
+    """Multiple solution separation: detection, identification, exclusion and PLs.
+
+    Parameters
+    ----------
+    h : (..., M, n) local-frame geometry rows (see :func:`geometry_rows`); columns 0..2 are
+        E, N, U.
+    z_m : (..., M) innovations (measured minus predicted at the linearisation point, m).
+    w : (..., M) weights ``1 / sigma^2`` (1/m^2); 0 marks an unused row.
+    is_sat : (M,) bool, rows that are satellites (candidates for removal); the baro row is
+        never removed (spec section 2: "sub-solution i: satellite i removed, baro kept").
+    p_fa, p_md : false-alarm and missed-detection probabilities.
+
+    Returns
+    -------
+    MssResult
+
+    Notes
+    -----
+    Equations (spec section 2): ``T_i = sqrt(lam_max(dP_i,EN)) Q^-1(p_fa / (2 m_sat))``,
+    vertical threshold ``sqrt(dP_i,UU) Q^-1(p_fa / (2 m_sat))``; ``HPL = max_i (T_i +
+    sqrt(lam_max(P_i,EN)) Q^-1(p_md))``; ``VPL = max_i (sqrt(dP_i,UU) Q^-1(p_fa / (2 m_sat))
+    + sqrt(P_i,UU) Q^-1(p_md))``.
+
+    Identification tests each candidate ``k``'s sub-solution against its sub-sub-solutions
+    ``(k, j)``, ``j`` over the other used satellites, with the same rule; the false-alarm
+    budget of that group is split over its ``m_sat - 1`` tests, i.e. the threshold factor
+    is ``Q^-1(p_fa / (2 (m_sat - 1)))`` (the spec says "the same rule"; this is our reading).
+    A test whose sub-sub-solution is unobservable makes its candidate fail to pass (it
+    cannot be confirmed).
+
+    After a multiple-fault verdict, and when the redundancy is at least 3, identification
+    goes one level deeper (spec section 2): for every pair ``(k, l)`` of used satellites the
+    solution without both is tested against each solution without ``(k, l, j)``, with the
+    factor ``Q^-1(p_fa / (2 (m_sat - 2)))``; see ``pair_*`` and ``ident_pair_*``. Deeper
+    levels (three or more faults) are not implemented.
+    """
+    p_fa = check_probability("p_fa", p_fa)
+    p_md = check_probability("p_md", p_md)
+    h = np.asarray(h, dtype=float)
+    batch = h.shape[:-2]
+    m_rows, n = h.shape[-2:]
+    h = h.reshape(-1, m_rows, n)
+    z = np.broadcast_to(np.asarray(z_m, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
+    w = np.broadcast_to(np.asarray(w, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
+    is_sat = np.asarray(is_sat, dtype=bool)
+    w = np.where(np.isfinite(z) & np.all(np.isfinite(h), axis=-1), w, 0.0)
+    z = np.where(w > 0.0, z, 0.0)
+    h = np.where(np.isfinite(h), h, 0.0)
+
+    p0, n_states, geom_ok = _normal_inverse(h, w)
+    dx0 = np.einsum("bij,bmj,bm,bm->bi", p0, h, w, z)
+    r = z - np.einsum("bmi,bi->bm", h, dx0)  # main residuals
+    used = w > 0.0
+    cand = used & is_sat[None, :]
+    m_sat = cand.sum(axis=-1)
+    m_tot = used.sum(axis=-1)
+    redundancy = m_tot - n_states
+    valid = geom_ok & (redundancy >= 1)
+
+    # Sub-solutions by rank-one downdate (Sherman-Morrison).
+    v = np.einsum("bij,bmj->bmi", p0, h)  # v_i = P0 h_i, (B, M, n)
+    c = np.einsum("bmi,bki->bmk", h, v)  # C = H P0 H^T, (B, M, M)
+    lev = w * np.diagonal(c, axis1=-2, axis2=-1)
+    one_m_lev = 1.0 - lev
+    sub_ok = cand & (one_m_lev > _LEVERAGE_TOL) & valid[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain = np.where(sub_ok, w / one_m_lev, np.nan)  # w_i / (1 - l_i)
+    dx_sep = (gain * r)[..., None] * v  # dX_i = X0 - X_i
+    dp = gain[..., None, None] * v[..., :, None] * v[..., None, :]  # dP_i = P_i - P0
+    p_sub = p0[:, None] + dp
+    dp_h_lam = _lam_max_2x2(dp[..., 0, 0], dp[..., 0, 1], dp[..., 1, 1])
+    p_h_lam = _lam_max_2x2(p_sub[..., 0, 0], p_sub[..., 0, 1], p_sub[..., 1, 1])
+    dp_u = dp[..., 2, 2]
+    p_u = p_sub[..., 2, 2]
+
+    with np.errstate(divide="ignore"):
+        k_fa = stats.norm.isf(p_fa / (2.0 * np.maximum(m_sat, 1)))  # spec section 2
+    k_md = stats.norm.isf(p_md)
+    d_h = np.linalg.norm(dx_sep[..., :2], axis=-1)
+    d_v = np.abs(dx_sep[..., 2])
+    t_h = np.sqrt(dp_h_lam) * k_fa[:, None]
+    t_v = np.sqrt(dp_u) * k_fa[:, None]
+    ratio = np.fmax(_safe_ratio(d_h, t_h), _safe_ratio(d_v, t_v))
+    alarm = valid & np.any(np.where(sub_ok, ratio > 1.0, False), axis=-1)
+
+    # Protection levels (spec section 2). Unavailable unless every used satellite's
+    # sub-solution is observable.
+    pl_ok = valid & np.all(sub_ok | ~cand, axis=-1) & (m_sat > 0)
+    with np.errstate(invalid="ignore"):
+        hpl = np.nanmax(np.where(sub_ok, t_h + np.sqrt(p_h_lam) * k_md, -np.inf), axis=-1)
+        vpl = np.nanmax(np.where(sub_ok, t_v + np.sqrt(p_u) * k_md, -np.inf), axis=-1)
+    hpl = np.where(pl_ok, hpl, np.nan)
+    vpl = np.where(pl_ok, vpl, np.nan)
+
+    # Identification through sub-sub-solutions (paper Fig. 1), all (k, j) pairs at once.
+    # With g_k = w_k / (1 - l_k): P_k h_j = v_j + g_k C_kj v_k,
+    # l_kj = w_j h_j^T P_k h_j = l_j + w_j g_k C_jk^2, r^(k)_j = r_j + g_k r_k C_jk.
+    g = np.where(sub_ok, gain, 0.0)
+    u_kj = v[:, None, :, :] + (g[:, :, None] * c)[..., None] * v[:, :, None, :]  # (B,K,J,n)
+    lev_kj = lev[:, None, :] + w[:, None, :] * g[:, :, None] * c**2
+    r_kj = r[:, None, :] + (g * r)[:, :, None] * c
+    pair = sub_ok[:, :, None] & cand[:, None, :] & ~np.eye(m_rows, dtype=bool)[None]
+    pair_ok = pair & (1.0 - lev_kj > _LEVERAGE_TOL)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain_kj = np.where(pair_ok, w[:, None, :] / (1.0 - lev_kj), np.nan)
+    sep_kj = (gain_kj * r_kj)[..., None] * u_kj  # X_k - X_kj
+    dp_kj_h = gain_kj[..., None, None] * u_kj[..., :2, None] * u_kj[..., None, :2]
+    lam_kj = _lam_max_2x2(dp_kj_h[..., 0, 0], dp_kj_h[..., 0, 1], dp_kj_h[..., 1, 1])
+    with np.errstate(divide="ignore"):
+        k_fa_sub = stats.norm.isf(p_fa / (2.0 * np.maximum(m_sat - 1, 1)))
+    t_kj_h = np.sqrt(lam_kj) * k_fa_sub[:, None, None]
+    t_kj_v = np.sqrt(gain_kj) * np.abs(u_kj[..., 2]) * k_fa_sub[:, None, None]
+    ratio_kj = np.fmax(
+        _safe_ratio(np.linalg.norm(sep_kj[..., :2], axis=-1), t_kj_h),
+        _safe_ratio(np.abs(sep_kj[..., 2]), t_kj_v),
+    )
+    ratio_kj = np.where(pair_ok, ratio_kj, np.where(pair, np.inf, -np.inf))
+    n_pairs = pair.sum(axis=-1)
+    score = np.where(sub_ok & (n_pairs > 0), ratio_kj.max(axis=-1), np.nan)
+    passed = np.where(np.isnan(score), False, score <= 1.0)
+    # Identification needs m >= n + 2 and a sub-sub test for every candidate.
+    can_ident = valid & (redundancy >= 2) & np.all(~cand | (sub_ok & (n_pairs > 0)), axis=-1)
+    can_ident &= np.all(~pair | pair_ok, axis=(-1, -2))
+    n_pass = passed.sum(axis=-1)
+    ident_status = np.full(h.shape[0], IDENT_NONE, dtype=object)
+    ident_status[alarm & ~can_ident] = IDENT_UNAVAILABLE
+    ident_status[alarm & can_ident & (n_pass == 1)] = IDENT_UNIQUE
+    ident_status[alarm & can_ident & (n_pass > 1)] = IDENT_AMBIGUOUS
+    ident_status[alarm & can_ident & (n_pass == 0)] = IDENT_MULTIPLE
+    ident_unique = np.where(ident_status == IDENT_UNIQUE, np.argmax(passed, axis=-1), -1)
+    ranked = np.argmin(np.where(np.isnan(score), np.inf, score), axis=-1)
+    pickable = (ident_status == IDENT_UNIQUE) | (ident_status == IDENT_AMBIGUOUS)
+    ident_rank = np.where(pickable, ranked, -1)
+
+    status = np.full(h.shape[0], STATUS_UNAVAILABLE, dtype=object)
+    status[valid] = STATUS_NO_ISOLATION
+    status[valid & can_ident] = STATUS_OK
+
+    deeper = (ident_status == IDENT_MULTIPLE) & (redundancy >= 3)
+    pairs, pair_pass, pair_score, pair_dx = _pair_level(h, z, w, cand, m_sat, deeper, p_fa)
+    n_pair_pass = pair_pass.sum(axis=-1)
+    pair_unique = np.where(n_pair_pass == 1, np.argmax(pair_pass, axis=-1), -1)
+    pair_rank = np.where(n_pair_pass >= 1, np.argmin(
+        np.where(pair_pass, pair_score, np.inf), axis=-1), -1)
+
+    def out(a):
+        return np.asarray(a).reshape(batch + a.shape[1:])
+
+    nan_rows = ~sub_ok
+    return MssResult(
+        status=out(status.astype(str)),
+        dx0_m=out(np.where(valid[:, None], dx0, np.nan)),
+        p0_m2=out(np.where(valid[:, None, None], p0, np.nan)),
+        dx_sep_m=out(np.where(nan_rows[..., None], np.nan, dx_sep)),
+        dp_h_lam_m2=out(np.where(nan_rows, np.nan, dp_h_lam)),
+        dp_u_m2=out(np.where(nan_rows, np.nan, dp_u)),
+        p_h_lam_m2=out(np.where(nan_rows, np.nan, p_h_lam)),
+        p_u_m2=out(np.where(nan_rows, np.nan, p_u)),
+        d_h_m=out(np.where(nan_rows, np.nan, d_h)),
+        t_h_m=out(np.where(nan_rows, np.nan, t_h)),
+        d_v_m=out(np.where(nan_rows, np.nan, d_v)),
+        t_v_m=out(np.where(nan_rows, np.nan, t_v)),
+        ratio=out(np.where(nan_rows, np.nan, ratio)),
+        alarm=out(alarm),
+        ident_status=out(ident_status.astype(str)),
+        ident_pass=out(passed),
+        ident_score=out(score),
+        ident_unique=out(ident_unique),
+        ident_rank=out(ident_rank),
+        hpl_m=out(hpl),
+        vpl_m=out(vpl),
+        k_fa=out(k_fa),
+        m_sat=out(m_sat),
+        n_states=out(n_states),
+        pairs=pairs,
+        pair_pass=out(pair_pass),
+        pair_score=out(pair_score),
+        pair_dx_m=out(pair_dx),
+        ident_pair_unique=out(pair_unique),
+        ident_pair_rank=out(pair_rank),
     )
 
 
-def _pair_names(main, pair, to_sat, names):
-    """Pair index (E,) into ``main.pairs`` -> ``"G01+G02"`` ("" for none)."""
-    a, b = (names[to_sat(np.where(pair >= 0, main.pairs[np.maximum(pair, 0), c], -1))]
-            for c in (0, 1))
-    return np.where(pair >= 0, a + "+" + b, "").astype(object)
+def _pair_level(h, z, w, cand, m_sat, todo, p_fa):
+    """Second identification level: remove every candidate pair, test the rest.
 
-
-def _ratio(d, t):
+    Runs only on the batch rows ``todo`` (multiple-fault verdicts, redundancy >= 3), all
+    pairs at once: each pair-removed solution is an explicit batched solve, its one-more
+    removals are rank-one downdates as in :func:`mss`. Returns ``pairs (P, 2)``,
+    ``pass (B, P)``, ``score (B, P)`` and ``dx (B, P, n)``.
+    """
+    n_b, m_rows, n = h.shape
+    k_idx, l_idx = np.triu_indices(m_rows, k=1)
+    pairs = np.stack([k_idx, l_idx], axis=-1)
+    n_p = len(pairs)
+    passed = np.zeros((n_b, n_p), dtype=bool)
+    score = np.full((n_b, n_p), np.nan)
+    dx = np.full((n_b, n_p, n), np.nan)
+    rows = np.flatnonzero(todo)
+    if rows.size == 0 or n_p == 0:
+        return pairs, passed, score, dx
+    hb, zb, wb, cb = h[rows], z[rows], w[rows], cand[rows]
+    pair_ok = cb[:, k_idx] & cb[:, l_idx]  # (b, P)
+    w2 = np.repeat(wb[:, None, :], n_p, axis=1)
+    w2[:, np.arange(n_p), k_idx] = 0.0
+    w2[:, np.arange(n_p), l_idx] = 0.0
+    h2 = np.broadcast_to(hb[:, None], w2.shape + (n,)).reshape(-1, m_rows, n)
+    p2, _, ok2 = _normal_inverse(h2, w2.reshape(-1, m_rows))
+    p2 = p2.reshape(len(rows), n_p, n, n)
+    ok2 = ok2.reshape(len(rows), n_p) & pair_ok
+    x2 = np.einsum("bpij,bmj,bpm,bm->bpi", p2, hb, w2, zb)
+    r2 = zb[:, None, :] - np.einsum("bmi,bpi->bpm", hb, x2)
+    v = np.einsum("bpij,bmj->bpmi", p2, hb)  # P_kl h_j
+    lev = w2 * np.einsum("bmi,bpmi->bpm", hb, v)
+    test = w2 > 0.0
+    test &= cb[:, None, :]
+    obs = ~test | (1.0 - lev > _LEVERAGE_TOL)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where((t == 0.0) & (d == 0.0), 0.0, d / t)
+        gain = np.where(test & obs, w2 / (1.0 - lev), np.nan)
+    sep = (gain * r2)[..., None] * v
+    lam = gain * np.sum(v[..., :2] ** 2, axis=-1)  # rank-one dP: its largest eigenvalue
+    with np.errstate(divide="ignore"):
+        k_fa = stats.norm.isf(p_fa / (2.0 * np.maximum(m_sat[rows] - 2, 1)))[:, None, None]
+    ratio = np.fmax(_safe_ratio(np.linalg.norm(sep[..., :2], axis=-1), np.sqrt(lam) * k_fa),
+                    _safe_ratio(np.abs(sep[..., 2]), np.sqrt(gain) * np.abs(v[..., 2]) * k_fa))
+    ratio = np.where(test, np.where(obs, ratio, np.inf), -np.inf)
+    usable = ok2 & np.any(test, axis=-1)
+    sc = np.where(usable, ratio.max(axis=-1), np.nan)
+    score[rows] = sc
+    passed[rows] = usable & (sc <= 1.0)
+    dx[rows] = np.where(usable[..., None], x2, np.nan)
+    return pairs, passed, score, dx
 
 
-SPEC = register(AlgorithmSpec(
-    name="mss",
-    label="Solution separation + baro (seed 001)",
-    summary=SUMMARY,
-    equations=EQUATIONS,
-    run=run,
-    options={"mss_ident_rule": "unique"},
-    reference="Chen W., Yang Z., Gu S., Wang Y., barometric-altimeter-aided autonomous "
-              "integrity monitoring by multiple solution separation (seed 001); classic PLs: "
-              "Brown (1992) Navigation 39(3); Walter & Enge (1995) ION GPS.",
-))
+@lru_cache(maxsize=256)
+def lambda_detect(dof: int, p_fa: float, p_md: float) -> float:
+    """Non-centrality the chi-square test detects with probability ``1 - p_md``.
+
+    Solves ``ncx2.cdf(chi2.isf(p_fa, dof), dof, lam) = p_md`` for ``lam`` (Brown 1992;
+    Walter & Enge 1995 call ``sqrt(lam)`` the "pbias").
+    """
+    t2 = stats.chi2.isf(p_fa, dof)
+
+    def miss(lam):
+        return stats.ncx2.cdf(t2, dof, lam) - p_md
+
+    hi = 10.0
+    while miss(hi) > 0.0:
+        hi *= 2.0
+    return float(optimize.brentq(miss, 1e-9, hi, xtol=1e-10, rtol=1e-12))
+
+
+def classic_raim(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
+    """Classic snapshot RAIM: weighted SSE chi-square detector and slope-based PLs.
+
+    Parameters
+    ----------
+    h, z_m, w, is_sat : as in :func:`mss` (a baro row, if weighted, is one more
+        measurement but never a fault candidate).
+    p_fa, p_md : false-alarm and missed-detection probabilities.
+
+    Returns
+    -------
+    ClassicResult
+
+    Notes
+    -----
+    Test statistic ``SSE = r^T W r ~ chi2(m - n)`` without fault, threshold
+    ``chi2.isf(p_fa, m - n)``. A bias ``b`` on measurement ``i`` gives the non-centrality
+    ``lam = b^2 w_i (1 - l_i)`` and the position error ``b S[:, i]`` with
+    ``S = P0 H^T W``, so (Brown 1992, weighted form of Walter & Enge 1995)::
+
+        Hslope_i = ||S[EN, i]|| / sqrt(w_i (1 - l_i)),   Vslope_i = |S[U, i]| / sqrt(w_i (1 - l_i))
+        HPL = max_i Hslope_i sqrt(lam_det),              VPL = max_i Vslope_i sqrt(lam_det)
+
+    where ``lam_det`` solves ``ncx2.cdf(chi2.isf(p_fa, dof), dof, lam_det) = p_md``.
+    (``Hslope_i = sqrt(lam_max(dP_i,EN))`` of :func:`mss`: both families share slopes.)
+    This PL has no noise term of its own (as in Brown 1992); the MSS PL has one.
+    """
+    p_fa = check_probability("p_fa", p_fa)
+    p_md = check_probability("p_md", p_md)
+    h = np.asarray(h, dtype=float)
+    batch = h.shape[:-2]
+    m_rows, n = h.shape[-2:]
+    h = h.reshape(-1, m_rows, n)
+    z = np.broadcast_to(np.asarray(z_m, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
+    w = np.broadcast_to(np.asarray(w, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
+    is_sat = np.asarray(is_sat, dtype=bool)
+    w = np.where(np.isfinite(z) & np.all(np.isfinite(h), axis=-1), w, 0.0)
+    z = np.where(w > 0.0, z, 0.0)
+    h = np.where(np.isfinite(h), h, 0.0)
+
+    p0, n_states, geom_ok = _normal_inverse(h, w)
+    dx0 = np.einsum("bij,bmj,bm,bm->bi", p0, h, w, z)
+    r = z - np.einsum("bmi,bi->bm", h, dx0)
+    used = w > 0.0
+    cand = used & is_sat[None, :]
+    dof = used.sum(axis=-1) - n_states
+    valid = geom_ok & (dof >= 1)
+    sse = np.where(valid, np.sum(w * r**2, axis=-1), np.nan)
+
+    dof_safe = np.maximum(dof, 1)
+    uniq = np.unique(dof_safe)  # a handful of small integers: one root-find each
+    thr_u = stats.chi2.isf(p_fa, uniq)
+    lam_u = np.array([lambda_detect(int(d), p_fa, p_md) for d in uniq])
+    pos = np.searchsorted(uniq, dof_safe)
+    threshold = np.where(valid, thr_u[pos], np.nan)
+    lam_det = np.where(valid, lam_u[pos], np.nan)
+    alarm = valid & (sse > threshold)
+
+    v = np.einsum("bij,bmj->bmi", p0, h)
+    lev = w * np.einsum("bmi,bmi->bm", h, v)
+    slope_ok = cand & (1.0 - lev > _LEVERAGE_TOL) & valid[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(slope_ok, np.sqrt(w / (1.0 - lev)), np.nan)  # S[:, i] = w_i v_i
+    hslope = scale * np.linalg.norm(v[..., :2], axis=-1)
+    vslope = scale * np.abs(v[..., 2])
+    pl_ok = valid & np.all(slope_ok | ~cand, axis=-1) & (cand.sum(axis=-1) > 0)
+    hpl = np.where(pl_ok, np.nanmax(np.where(slope_ok, hslope, -np.inf), axis=-1), np.nan)
+    vpl = np.where(pl_ok, np.nanmax(np.where(slope_ok, vslope, -np.inf), axis=-1), np.nan)
+    hpl = hpl * np.sqrt(lam_det)
+    vpl = vpl * np.sqrt(lam_det)
+
+    status = np.full(h.shape[0], STATUS_UNAVAILABLE, dtype=object)
+    status[valid] = STATUS_NO_ISOLATION
+    status[valid & (dof >= 2)] = STATUS_OK
+
+    def out(a):
+        return np.asarray(a).reshape(batch + a.shape[1:])
+
+    return ClassicResult(
+        status=out(status.astype(str)),
+        sse=out(sse),
+        threshold=out(threshold),
+        alarm=out(alarm),
+        dof=out(dof),
+        lam_det=out(lam_det),
+        hslope_m=out(hslope),
+        vslope_m=out(vslope),
+        hpl_m=out(hpl),
+        vpl_m=out(vpl),
+    )
+
+
+def availability(hpl_m, vpl_m, hal_m: float, val_m: float) -> np.ndarray:
+    """``True`` where both protection levels are finite and within the alert limits."""
+    hpl = np.asarray(hpl_m, dtype=float)
+    vpl = np.asarray(vpl_m, dtype=float)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(hpl) & np.isfinite(vpl) & (hpl <= hal_m) & (vpl <= val_m)

@@ -11,8 +11,6 @@ import numpy as np
 
 from .._validate import check_int
 from ..lsq import wls
-from ..mss import classic_raim
-from ..parity import parity_statistics
 from .base import (
     STATUS_NO_ISOLATION,
     STATUS_OK,
@@ -22,6 +20,8 @@ from .base import (
     EpochData,
     register,
 )
+from .mss import classic_raim
+from .parity import parity_statistics
 
 SUMMARY = (
     "The parity vector collects the part of the measurements that no position and clock "
@@ -54,7 +54,7 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     st = parity_statistics(before.h_enu, before.resid_m, w, data.p_fa, before.dof)
     available = before.available & (before.dof >= 1)
     # Classic slope-based protection levels of the chi-square detector (Brown 1992; see
-    # raimcore.mss.classic_raim), for comparison with solution separation (seed 001).
+    # raimcore.algorithms.mss.classic_raim), for comparison with solution separation (seed 001).
     pl = classic_raim(before.h_enu, before.resid_m, w, np.ones(w.shape[-1], dtype=bool),
                       data.p_fa, data.p_md)
     status = np.where(~available, STATUS_UNAVAILABLE,

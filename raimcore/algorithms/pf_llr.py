@@ -1,6 +1,6 @@
 """Particle-filter RAIM with windowed log-likelihood ratios (seed 002, spec section 3).
 
-A bank of s + 1 SIR particle filters (:mod:`raimcore.pf`): the main filter uses every
+A bank of s + 1 SIR particle filters (:mod:`raimcore.algorithms.pf`): the main filter uses every
 satellite, auxiliary filter j every satellite but j. Each epoch, each filter scores its
 own measurement set with its predictive likelihood; the LLR of "satellite j faulty" is
 ``s_j(k) = ln p_aux_j(y^(-j)) - ln p_main(y)``, summed over a sliding window of W epochs.
@@ -16,16 +16,7 @@ import numpy as np
 
 from .._validate import check_choice, check_int, check_positive, check_probability
 from ..geometry import ecef_to_enu
-from ..noise import scaled
-from ..pf import (
-    PROCESS_MODELS,
-    ProcessModel,
-    cached_tau,
-    calibrate_tau,
-    calibration_key,
-    robust_fix,
-    run_llr_bank,
-)
+from ..measure.noise import scaled
 from .base import (
     STATUS_NOT_ARMED,
     STATUS_OK,
@@ -34,6 +25,15 @@ from .base import (
     AlgorithmSpec,
     EpochData,
     register,
+)
+from .pf import (
+    PROCESS_MODELS,
+    ProcessModel,
+    cached_tau,
+    calibrate_tau,
+    calibration_key,
+    robust_fix,
+    run_llr_bank,
 )
 
 SUMMARY = (
@@ -144,7 +144,7 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     (``"memory"``, ``"disk"``, ``"off"``), ``tau_sets`` (``"first"``: calibrate once, for
     the satellites in view at the first armed epoch; ``"each"``: once per satellite set in
     view, each armed epoch tested against its own set's tau), ``model``, ``q_pos_mps``,
-    ``q_vel_mps2``, ``q_clk_mps`` (process model, :class:`raimcore.pf.ProcessModel`).
+    ``q_vel_mps2``, ``q_clk_mps`` (process model, :class:`raimcore.algorithms.pf.ProcessModel`).
     """
     n = check_int("n_particles", options.get("n_particles", 100), 2, 1_000_000)
     window = check_int("window", options.get("window", 30), 1, 100_000)

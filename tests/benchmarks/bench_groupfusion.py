@@ -7,9 +7,9 @@ Run from the repository root::
 
 1. One Monte Carlo cell (default 18 satellites, 2 faults at 1.0 P_bias, N^2 groups), the
    same simulated runs for every variant, in the same process:
-   - vectorised: :func:`raimcore.groupfusion.gf_isolate`, all groups of a chunk of runs in
-     one membership-matrix product (as the Monte Carlo engine calls it);
-   - per-group loop: :func:`raimcore.groupfusion.gf_isolate_loop` (batched over runs, one
+   - vectorised: :func:`raimcore.algorithms.groupfusion.gf_isolate`, all groups of a chunk of
+     runs in one membership-matrix product (as the Monte Carlo engine calls it);
+   - per-group loop: :func:`raimcore.algorithms.groupfusion.gf_isolate_loop` (batched over runs, one
      Python iteration per group);
    - scalar loop: one ``numpy.linalg.lstsq`` per run and per group with scipy.stats
      (timed on a subset of runs).
@@ -30,9 +30,9 @@ import numpy as np
 from scipy import stats
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from a checkout
-from raimcore import groupfusion as gfm  # noqa: E402
-from raimcore import montecarlo as mc  # noqa: E402
-from raimcore.seed004 import table2_study  # noqa: E402
+from raimcore.algorithms import groupfusion as gfm  # noqa: E402
+from raimcore.studies import montecarlo as mc  # noqa: E402
+from raimcore.studies.seed004 import table2_study  # noqa: E402
 
 SIGMA_M, P_FA, P_MD = 33.0, 1e-5 / 3600, 0.014  # seed 004
 

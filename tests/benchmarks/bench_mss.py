@@ -4,8 +4,8 @@ Run from the repository root::
 
     python tests/benchmarks/bench_mss.py [--epochs 3600] [--sats 9] [--repeat 3]
 
-1. Kernels: the same kernels (:func:`raimcore.mss.mss` and :func:`raimcore.mss.classic_raim`,
-   with and without baro) on the same random geometries, batched vs called once per epoch.
+1. Kernels: the same kernels (:func:`raimcore.algorithms.mss.mss` and
+   :func:`raimcore.algorithms.mss.classic_raim`, with and without baro) on the same random geometries, batched vs called once per epoch.
 2. Algorithm: the registered ``mss`` algorithm (WLS linearisation + kernels) on the
    ``seed001-flight`` data, all epochs at once vs one single-epoch ``EpochData`` at a time.
 Both in the same process; prints epochs/s of each, the ratio, and whether the PLs agree.
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from a checkout
-from raimcore import mss  # noqa: E402
+from raimcore.algorithms import mss  # noqa: E402
 
 SIGMA_M, SIGMA_BARO_M, P_FA, P_MD = 33.3, 50.0, 1e-5, 1e-3  # seed 001
 

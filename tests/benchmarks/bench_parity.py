@@ -19,7 +19,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from raimcore.algorithms.parity_fde import run  # noqa: E402
-from raimcore.faults import Fault  # noqa: E402
+from raimcore.measure.faults import Fault  # noqa: E402
 from raimcore.scenario import build_epoch_data, load_scenario  # noqa: E402
 
 SATS = ["G02", "G05", "G06", "G09", "G10", "G15", "G20", "C02", "C21", "C28"]

@@ -1,7 +1,7 @@
 """Benchmark: the bank of s + 1 particle filters, vectorised against a per-filter loop.
 
 Seed 002 (6 satellites: 7 filters), N = 100, 1,000 and 10,000 particles. Both paths run
-the same kernels (:class:`raimcore.pf.ParticleBank` ``step``: predict, likelihood,
+the same kernels (:class:`raimcore.algorithms.pf.ParticleBank` ``step``: predict, likelihood,
 weights, N_eff, systematic resampling): once with the 7 filters as one batch axis, once
 as 7 banks of one filter stepped in a Python loop. Prints epochs/s and the ratio.
 
@@ -17,7 +17,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from raimcore import pf  # noqa: E402
+from raimcore.algorithms import pf  # noqa: E402
 from raimcore.scenario import build_epoch_data, load_scenario  # noqa: E402
 from tests.benchmarks.bench_parity import best_of  # noqa: E402
 

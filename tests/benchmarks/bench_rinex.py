@@ -2,8 +2,8 @@
 
 The 2-hour, 30-s RINEX 3.05 mixed file of ESBC (../shared/data, GPS + BDS, 240 epochs) and
 its mixed navigation file. The batched path reads both files, corrects every epoch at once
-(:func:`raimcore.spp.correct`, through the recording loader), solves all epochs
-(:func:`raimcore.spp.solve`) and runs the parity FDE on the recording's EpochData.
+(:func:`raimcore.sky.spp.correct`, through the recording loader), solves all epochs
+(:func:`raimcore.sky.spp.solve`) and runs the parity FDE on the recording's EpochData.
 The baseline reads the files once, then runs the same functions epoch by epoch
 (one-epoch ObsFile slices, one-epoch EpochData). Prints epochs/s of both and the ratio.
 
@@ -22,15 +22,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from raimcore import recording  # noqa: E402
 from raimcore.algorithms.parity_fde import run  # noqa: E402
-from raimcore.recording import (  # noqa: E402
+from raimcore.sky import recording  # noqa: E402
+from raimcore.sky.recording import (  # noqa: E402
     load_recording,
     recording_epoch_data,
     recording_scenario,
 )
-from raimcore.rinex import read_nav, read_obs  # noqa: E402
-from raimcore.spp import correct, solve  # noqa: E402
+from raimcore.sky.rinex import read_nav, read_obs  # noqa: E402
+from raimcore.sky.spp import correct, solve  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 OBS = DATA / "ESBC00DNK_R_20201770000_02H_30S_MO.rnx"

@@ -2,7 +2,7 @@
 
 Table 1: GF correct-isolation rate for dual faults at 1.0 P_bias against the number of
 groups. Table 2: RS / QV / GF for every (bias, faults, N) cell. The paper's numbers are
-stored in ``raimcore/reference/seed004_table{1,2}.csv`` (transcribed from the seed text).
+stored in ``raimcore/studies/reference/seed004_table{1,2}.csv`` (transcribed from the seed text).
 
 Fault size: the spec (section 4) asks for the setting as written (faults of b x P_bias,
 eq. 13) *and* twice that size, printed side by side, because the paper's dual and triple
@@ -28,7 +28,7 @@ TABLES = ("seed004-table1", "seed004-table2")
 
 
 def _read(name: str) -> list[dict]:
-    text = resources.files("raimcore").joinpath("reference", name).read_text()
+    text = resources.files("raimcore.studies").joinpath("reference", name).read_text()
     lines = [ln for ln in text.splitlines() if ln and not ln.startswith("#")]
     return list(csv.DictReader(lines))
 
@@ -168,7 +168,7 @@ def run_table(table: str, *, runs: int = 5000, seed: int = 4, scales=(1.0, 2.0),
               progress: bool | None = None) -> tuple[list[StudyResult], str]:
     """Run ``"seed004-table1"`` or ``"seed004-table2"`` at each fault-bias scale
     (``gate``: score only runs the full-set chi-square test detects, see
-    :mod:`raimcore.montecarlo`).
+    :mod:`raimcore.studies.montecarlo`).
 
     Returns the study results and the printed comparison text.
     """

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from ._validate import check_array, check_choice, check_probability
+from .._validate import check_array, check_choice, check_probability
 
 __all__ = ["parity_matrix", "parity_test", "ParityResult", "sse_test", "parity_statistics",
            "ParityStatistics", "detection_probability"]
@@ -190,7 +190,7 @@ class ParityStatistics:
 
 def _whitened_projector(h, w):
     """S = I - A N^-1 A^T with A = sqrt(w) H; rows with zero weight give S_jj = 1."""
-    from .lsq import normal_solve
+    from ..lsq import normal_solve
 
     n_inv, _, ok = normal_solve(h, w, strict=False)
     a = np.sqrt(w)[..., None] * h

@@ -2,7 +2,7 @@
 
 A scenario with ``source = "rinex"`` names an observation and a navigation file. The
 pseudoranges of the chosen signals are corrected for the satellite clock (relativity, TGD),
-the Klobuchar ionosphere and the troposphere (:mod:`raimcore.spp`), so that every registered
+the Klobuchar ionosphere and the troposphere (:mod:`raimcore.sky.spp`), so that every registered
 algorithm sees the same kind of data as from a simulation: satellite positions and
 pseudoranges whose only unknowns are the receiver position and one clock per system. Faults
 are added to the real pseudoranges; the truth for the error columns is the header position
@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .algorithms.base import EpochData
-from .faults import fault_biases
-from .geometry import az_el, ecef_to_geodetic
-from .noise import GaussMarkovFit, fit_gauss_markov, make_noise
+from ..algorithms.base import EpochData
+from ..geometry import az_el, ecef_to_geodetic
+from ..measure.faults import fault_biases
+from ..measure.noise import GaussMarkovFit, fit_gauss_markov, make_noise
 from .rinex import ObsFile, read_nav, read_obs
 from .spp import SYSTEM_LETTER, Corrected, correct, elevation_sigma, solve
 
@@ -62,7 +62,7 @@ def recording_scenario(obs, nav, **overrides):
     """A :class:`~raimcore.scenario.Scenario` for a recording with real-data defaults:
     GPS and BDS (those present), the whole recording at its own interval, ``sigma_m`` 1 m,
     a 10-degree mask; ``overrides`` are scenario keys."""
-    from .scenario import from_dict
+    from ..scenario import from_dict
 
     o = _read_obs(_stamp(obs))
     systems = [s for s, letter in SYSTEM_LETTER.items()
@@ -97,7 +97,7 @@ def _window(t_rel, t0, duration, step) -> np.ndarray:
 
 def recording_epoch_data(s) -> EpochData:
     """The :class:`EpochData` of a ``source = "rinex"`` scenario ``s``."""
-    from .scenario import apply_restrict
+    from ..scenario import apply_restrict
 
     obs_file = _read_obs(_stamp(s.obs))
     corr = load_recording(s.obs, s.nav, s.systems, s.signals)
@@ -170,11 +170,11 @@ def error_statistics(data: EpochData) -> GaussMarkovFit:
     The errors are the corrected pseudoranges minus the ranges from the true (station)
     position, with each epoch's receiver clock (one per system) removed as the weighted
     mean over that system's satellites; faulted measurements (``fault_bias_m != 0``) are
-    left out. Each error is divided by its elevation model (:func:`raimcore.spp.
+    left out. Each error is divided by its elevation model (:func:`raimcore.sky.spp.
     elevation_sigma` at ``sigma_m = 1``) and by ``sqrt(1 - w_i / sum w)`` (the share the
     clock estimate takes), so ``sigma_m`` of the fit is directly comparable to the
     scenario's ``sigma_m`` and ``corr_s`` to its ``noise_corr_s``
-    (:func:`raimcore.noise.fit_gauss_markov`).
+    (:func:`raimcore.measure.noise.fit_gauss_markov`).
     """
     rng = np.linalg.norm(data.pos_sv_ecef_m - data.pos_rx_true_ecef_m[:, None, :], axis=-1)
     d = data.pr_m - rng

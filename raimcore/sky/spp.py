@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .constants import C_MPS, OMEGA_E_RADPS
+from ..constants import C_MPS, OMEGA_E_RADPS
+from ..geometry import az_el, ecef_to_geodetic
+from ..lsq import LsqResult, wls
 from .ephemeris import from_nav, sat_pos_clock
-from .geometry import az_el, ecef_to_geodetic
-from .lsq import LsqResult, wls
 from .rinex import NavFile, ObsFile
 
 __all__ = ["Corrected", "correct", "solve", "spp", "klobuchar", "troposphere",

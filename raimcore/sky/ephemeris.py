@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constants import (
+from ..constants import (
     C_MPS,
     GM_BDS_M3PS2,
     GM_GPS_M3PS2,
@@ -119,7 +119,7 @@ class Ephemerides:
 
 
 def from_nav(nav) -> Ephemerides:
-    """All GPS and BeiDou records of a :class:`~raimcore.rinex.NavFile`, one array each."""
+    """All GPS and BeiDou records of a :class:`~raimcore.sky.rinex.NavFile`, one array each."""
     parts = []
     for letter, (sats, toc, vals) in nav.records.items():
         if letter not in "GC":

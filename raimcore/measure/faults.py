@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validate import check_choice
+from .._validate import check_choice
 
 __all__ = ["Fault", "fault_biases", "parse_fault"]
 

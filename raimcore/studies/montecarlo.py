@@ -43,10 +43,10 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize, stats
 
-from . import groupfusion as gfm
-from ._validate import check_choice, check_int, check_positive, check_probability, check_range
-from .constellations import builtin
-from .geometry import geodetic_to_ecef, los_enu
+from .._validate import check_choice, check_int, check_positive, check_probability, check_range
+from ..algorithms import groupfusion as gfm
+from ..geometry import geodetic_to_ecef, los_enu
+from ..sky.constellations import builtin
 
 __all__ = ["Study", "StudyResult", "run_study", "p_bias_m", "p_bias_group_m", "random_geometry",
            "simulate_runs", "KERNELS", "register_kernel", "parse_algorithm", "CHUNK_RUNS",

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import constants as k
-from ._validate import check_positive, check_range
-from .geometry import enu_rotation, geodetic_to_ecef
+from .. import constants as k
+from .._validate import check_positive, check_range
+from ..geometry import enu_rotation, geodetic_to_ecef
 
 __all__ = ["Trajectory", "static", "straight_line", "flight_profile", "TRAJECTORY_KINDS"]
 

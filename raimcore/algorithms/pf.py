@@ -18,7 +18,7 @@ Process models (spec section 3, "Filter"):
   drifting clock).
 
 Measurement model: ``rho_i = ||r - s_i|| + c dt_sys(i) + v_i`` with ``v_i`` from the
-scenario's noise model (:mod:`raimcore.noise`): the filter's likelihood is its ``logpdf``.
+scenario's noise model (:mod:`raimcore.measure.noise`): the filter's likelihood is its ``logpdf``.
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
-from ._validate import check_choice, check_positive
-from .geometry import ecef_to_geodetic, enu_rotation
-from .noise import scaled
+from .._validate import check_choice, check_positive
+from ..geometry import ecef_to_geodetic, enu_rotation
+from ..measure.noise import scaled
 
 __all__ = ["PROCESS_MODELS", "ProcessModel", "ParticleBank", "predict", "log_likelihood",
            "normalise_log_weights", "effective_sample_size", "systematic_resample",
@@ -123,7 +123,7 @@ def log_likelihood(particles, pos_sv_ecef_m, pr_m, mask, sys_idx, noise, model: 
     pr_m : (..., S) pseudoranges (m); may be NaN where ``mask`` is False.
     mask : (..., S) bool, the measurements this filter scores.
     sys_idx : (S,) system index of each satellite.
-    noise : noise model with ``logpdf`` (:mod:`raimcore.noise`).
+    noise : noise model with ``logpdf`` (:mod:`raimcore.measure.noise`).
     model : the process model (for the state layout).
 
     Returns
@@ -239,7 +239,7 @@ def cov_enu_to_ecef(pos_ecef_m, cov_enu):
 def availability(used, sys_idx, n_sys: int):
     """Per epoch: the number of states ``n = 3 + systems in view`` ``(E,)`` and whether
     ``m >= n + 1`` (a filter can update and be tested) ``(E,)`` for ``used`` ``(E, S)``."""
-    from .lsq import clock_columns
+    from ..lsq import clock_columns
 
     used = np.asarray(used, dtype=bool)
     cc = clock_columns(sys_idx, n_sys)
@@ -402,7 +402,7 @@ class BankRun:
 
 def _noise_weight(noise):
     """Least-squares weight 1/std^2 (1/m^2) of a noise model (scale if the std is
-    infinite); per satellite for a :class:`~raimcore.noise.Scaled` model."""
+    infinite); per satellite for a :class:`~raimcore.measure.noise.Scaled` model."""
     std = np.asarray(noise.std_m, dtype=float)
     scale = getattr(noise, "scale", 1.0)
     return 1.0 / np.where(np.isfinite(std), std * std, (noise.sigma_m * scale) ** 2)
@@ -428,7 +428,7 @@ def robust_fix(pos_sv_ecef_m, pr_m, used, sys_idx, n_sys: int, noise, n_iter: in
     -------
     LsqResult with batch shape (R,); its covariance uses the nominal ``1 / std^2`` weights.
     """
-    from .lsq import clock_columns, normal_solve, wls
+    from ..lsq import clock_columns, normal_solve, wls
 
     pr1 = np.asarray(pr_m, dtype=float)
     r_n, s_n = pr1.shape
@@ -479,7 +479,7 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
         LLRs are not accumulated (the cloud converging from the least-squares start).
     rng : random generator.
     scale : optional (E, S) per-satellite factor on the noise (the elevation model of a
-        recording, :class:`~raimcore.noise.Scaled`); None: the same noise for all.
+        recording, :class:`~raimcore.measure.noise.Scaled`); None: the same noise for all.
     keep_cloud : keep this many particles of the main filter (realisation 0) per epoch
         for display (``BankRun.cloud``); 0: none.
 

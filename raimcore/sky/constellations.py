@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import constants as k
+from .. import constants as k
 
 __all__ = ["Constellation", "gps_nominal", "beidou_nominal", "read_yuma", "combine",
            "SYSTEM_PREFIX", "builtin"]

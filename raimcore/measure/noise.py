@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
-from ._validate import check_choice, check_positive, check_probability
+from .._validate import check_choice, check_positive, check_probability
 
 __all__ = ["Gaussian", "GaussianMixture", "StudentT", "make_noise", "gauss_markov_unit",
            "GaussMarkovFit", "fit_gauss_markov", "Scaled", "scaled", "NOISE_KINDS"]

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
-from ._validate import check_choice, check_int, check_probability, check_range
+from .._validate import check_choice, check_int, check_probability, check_range
 
 __all__ = ["select_groups", "group_chi2", "basic_belief", "combine_pair", "fuse",
            "adaptive_isolation", "gf_isolate", "rs_isolate", "qv_isolate", "parity_isolate",
