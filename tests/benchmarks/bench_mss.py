@@ -5,7 +5,8 @@ Run from the repository root::
     python tests/benchmarks/bench_mss.py [--epochs 3600] [--sats 9] [--repeat 3]
 
 1. Kernels: the same kernels (:func:`raimcore.algorithms.mss.mss` and
-   :func:`raimcore.algorithms.mss.classic_raim`, with and without baro) on the same random geometries, batched vs called once per epoch.
+   :func:`raimcore.algorithms.mss.classic_raim`, with and without baro) on the same random
+   geometries, batched vs called once per epoch.
 2. Algorithm: the registered ``mss`` algorithm (WLS linearisation + kernels) on the
    ``seed001-flight`` data, all epochs at once vs one single-epoch ``EpochData`` at a time.
 Both in the same process; prints epochs/s of each, the ratio, and whether the PLs agree.
