@@ -1,13 +1,15 @@
-"""Scenario descriptions and the engine that turns one into a per-epoch result table.
+"""Scenario descriptions: one typed, validated, frozen description of a run.
 
 A :class:`Scenario` is flat: every key is a top-level field, so a TOML file, a CLI
-``--set key=value`` and a dashboard control all address the same names. Named scenarios
-are TOML files shipped in ``raimcore/scenarios/``. Algorithm options are scenario keys too:
-each registered algorithm declares its own (``AlgorithmSpec.options``).
+``--set key=value`` and a dashboard control all address the same names. Each field declares
+its :class:`~raimcore.schema.Key` (type, default, unit, range, help) once, right here; the
+constructor checks every value against it before anything is simulated. Algorithm options
+are scenario keys too: each algorithm declares its own (``AlgorithmSpec.options``), and a
+scenario takes only the options of its algorithm.
 
-Pipeline: :func:`build_epoch_data` (constellation, trajectory, visibility, noise, faults,
-baro) -> ``algorithm.run`` -> :func:`make_table` (errors in the local frame, theoretical
-detection probability, truth) -> :class:`ScenarioResult`.
+Named scenarios are TOML files shipped in ``raimcore/scenarios/`` (with a Markdown report
+beside some of them, :func:`scenario_report`). The run itself is
+:func:`raimcore.pipeline.run_scenario`.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -23,20 +25,32 @@ from typing import Any
 import numpy as np
 
 from . import algorithms
-from ._validate import check_choice, check_int, check_positive, check_probability, check_range
-from .algorithms.base import STATUS_UNAVAILABLE, AlgorithmOutput, EpochData
-from .algorithms.parity import _whitened_projector, detection_probability
-from .geometry import ecef_to_enu
-from .lsq import clock_columns, geometry_rows
-from .measure.faults import Fault, fault_biases
-from .measure.noise import NOISE_KINDS, make_noise
-from .scoring.table import ResultTable
-from .sky.constellations import builtin, read_yuma
-from .sky.trajectories import TRAJECTORY_KINDS, flight_profile, static, straight_line
+from .measure.faults import Fault
+from .measure.noise import NOISE_KINDS
+from .schema import (
+    Key,
+    SchemaError,
+    coerce_float,
+    coerce_str,
+    did_you_mean,
+    key,
+    keys_of,
+)
+from .sky.trajectories import TRAJECTORY_KINDS
 
-__all__ = ["Scenario", "ScenarioResult", "Restrict", "load_scenario", "list_scenarios",
-           "build_epoch_data", "run_scenario", "run_algorithm", "make_table", "parse_value",
-           "summarize", "unavailable_output"]
+__all__ = ["Scenario", "Restrict", "load_scenario", "list_scenarios", "from_dict",
+           "parse_value", "scenario_keys", "all_keys", "scenario_report", "recording_scenario",
+           "SYSTEMS", "SOURCES"]
+
+#: Satellite systems and the first letter of their satellites' names.
+SYSTEMS = {"GPS": "G", "BDS": "C"}
+#: Where the pseudoranges come from: simulated, or a RINEX recording (raimcore.sky.recording).
+SOURCES = ("sim", "rinex")
+#: Longest run, in epochs (duration_s / step_s).
+MAX_EPOCHS = 2_000_000
+#: A receiver position must lie this far from the Earth's centre (m): the surface to
+#: beyond the GEO ring, so [0, 0, 0] or a position typed in km is refused.
+TRUTH_RADIUS_M = (6.0e6, 5.0e7)
 
 
 @dataclass(frozen=True)
@@ -47,85 +61,251 @@ class Restrict:
     t0_s: float = 0.0
     t1_s: float = math.inf
 
+    def __post_init__(self):
+        sats = Key("restrict sats", "strings", (), "").coerce(self.sats)
+        if not sats:
+            raise SchemaError("restrict sats must name at least one satellite")
+        object.__setattr__(self, "sats", sats)
+        object.__setattr__(self, "t0_s", coerce_float("restrict t0_s", self.t0_s, unit="s"))
+        if not (isinstance(self.t1_s, float) and self.t1_s == math.inf):
+            object.__setattr__(self, "t1_s", coerce_float("restrict t1_s", self.t1_s,
+                                                          unit="s"))
+        if self.t1_s <= self.t0_s:
+            raise SchemaError(f"restrict t1_s must be after t0_s ({self.t0_s:g}), got "
+                              f"{self.t1_s:g}")
+
+    @classmethod
+    def from_dict(cls, d, where: str = "restrict") -> Restrict:
+        if isinstance(d, Restrict):
+            return d
+        if not isinstance(d, dict):
+            raise SchemaError(f"{where} must be a table such as {{sats = [\"G04\", \"G08\"], "
+                              f"t0_s = 0, t1_s = 100}}, got {d!r}")
+        unknown = [k for k in d if k not in ("sats", "t0_s", "t1_s")]
+        if unknown:
+            raise SchemaError(f"{where}: unknown key(s) {', '.join(map(str, unknown))}; "
+                              "allowed: sats, t0_s, t1_s")
+        if "sats" not in d:
+            raise SchemaError(f"{where}: missing sats (the satellites tracked in the window)")
+        return cls(**d)
+
+    def to_dict(self) -> dict:
+        return {"sats": list(self.sats), "t0_s": self.t0_s,
+                **({"t1_s": self.t1_s} if math.isfinite(self.t1_s) else {})}
+
+
+def _parse_faults(name, value):
+    if isinstance(value, dict | Fault) or isinstance(value, str) or \
+            not isinstance(value, list | tuple):
+        raise SchemaError(f"{name} must be a list of fault tables ([[faults]] in TOML), got "
+                          f"{value!r}"[:200])
+    return tuple(Fault.from_dict(f, f"{name}[{i}]") for i, f in enumerate(value))
+
+
+def _parse_restrict(name, value):
+    if isinstance(value, dict | Restrict) or isinstance(value, str) or \
+            not isinstance(value, list | tuple):
+        raise SchemaError(f"{name} must be a list of tables ([[restrict]] in TOML), got "
+                          f"{value!r}"[:200])
+    return tuple(Restrict.from_dict(r, f"{name}[{i}]") for i, r in enumerate(value))
+
+
+def _parse_rename(name, value):
+    pairs = value.items() if isinstance(value, dict) else value
+    if isinstance(value, str) or not isinstance(pairs, list | tuple | type({}.items())):
+        raise SchemaError(f"{name} must be a table of old = new satellite names, e.g. "
+                          f"{{G05 = \"G04\"}}, got {value!r}")
+    out = []
+    for pair in pairs:
+        if not (isinstance(pair, list | tuple) and len(pair) == 2
+                and all(isinstance(x, str) and x for x in pair)):
+            raise SchemaError(f"{name} must map satellite names to satellite names, got "
+                              f"{pair!r}")
+        out.append(tuple(pair))
+    if len({a for a, _ in out}) != len(out):
+        raise SchemaError(f"{name} renames a satellite twice")
+    return tuple(sorted(out))
+
+
+def _parse_truth(name, value):
+    if isinstance(value, str) or not isinstance(value, list | tuple | np.ndarray):
+        raise SchemaError(f"{name} must be [] or [x, y, z] in metres (ECEF), got {value!r}")
+    if len(value) == 0:
+        return ()
+    if len(value) != 3:
+        raise SchemaError(f"{name} must be [] or [x, y, z] in metres (ECEF), got {len(value)} "
+                          "values")
+    xyz = tuple(coerce_float(f"{name}[{i}]", v, unit="m") for i, v in enumerate(value))
+    r = math.sqrt(sum(x * x for x in xyz))
+    lo, hi = TRUTH_RADIUS_M
+    if not lo <= r <= hi:
+        raise SchemaError(f"{name} must be an ECEF position in metres between {lo / 1e3:,.0f} "
+                          f"and {hi / 1e3:,.0f} km from the Earth's centre, got "
+                          f"{r / 1e3:,.1f} km")
+    return xyz
+
+
+def _parse_algorithm(name, value):
+    names = algorithms.names()
+    if not isinstance(value, str) or value not in names:
+        algorithms.get(value if isinstance(value, str) else repr(value))  # names the choices
+    return value
+
+
+def _parse_path_or_nominal(name, value):
+    v = coerce_str(name, value)
+    if not v.strip():
+        raise SchemaError(f"{name} must be \"nominal\" or the path of a YUMA almanac")
+    return v
+
 
 @dataclass(frozen=True)
 class Scenario:
-    """One scenario. All fields are scenario-file / ``--set`` keys (SI units, degrees).
+    """One scenario. Every field is a scenario-file / ``--set`` key with its declaration
+    (``raim keys`` lists them, with units, ranges and help). SI units, angles in degrees.
 
-    Constellation and time: ``systems`` (GPS, BDS), ``constellation`` ("nominal" or a
-    YUMA almanac path), ``sats`` (subset to use; empty = all), ``rename`` (old -> new name),
-    ``t_start_s`` (constellation time at t = 0), ``duration_s``, ``step_s``.
-    Receiver: ``trajectory`` (static | line | flight), ``lat_deg``, ``lon_deg``,
-    ``height_m``, ``speed_mps``, ``heading_deg``, ``climb_mps`` (line), ``cruise_speed_mps``,
-    ``cruise_alt_m``, ``climb_s``, ``turn_start_s``, ``turn_rate_dps``, ``turn_deg``
-    (flight); ``clock_drift_mps``.
-    Measurements: ``mask_deg``, ``sigma_m``, ``noise`` (gaussian | mixture | student-t),
-    ``mixture_eps``, ``mixture_scale``, ``student_nu``, ``noise_corr_s`` (correlation time
-    of the noise in s, first-order Gauss-Markov; 0 = white; see :mod:`raimcore.measure.noise`),
-    ``faults``, ``restrict``, ``baro``, ``sigma_baro_m``.
-    Integrity: ``algorithm``, ``p_fa``, ``p_md``, ``hal_m``, ``val_m``, ``seed``;
-    algorithm-specific keys land in ``options``.
-    Real recordings (``source = "rinex"``, see :mod:`raimcore.sky.recording`): ``obs``,
-    ``nav`` (RINEX paths), ``signals`` (code types, e.g. ``["C1C", "C2I"]``; empty = the
-    defaults), ``truth_ecef_m`` (truth for the error columns; empty = the header position);
-    ``t_start_s`` / ``duration_s`` / ``step_s`` then cut and thin the recording (t = 0 at
-    its first epoch + ``t_start_s``).
+    Algorithm options live in ``options`` (``(name, value)`` pairs of the chosen algorithm's
+    options; on the command line and in files they are plain keys). ``notes`` (not a key)
+    records what loading did that the user should know.
+
+    Raises
+    ------
+    SchemaError (a ValueError)
+        A value its key refuses, an option the algorithm does not take, or keys that do not
+        fit together (a satellite not in the chosen systems, ``source = "rinex"`` without
+        files); the message names the key, the value and what is allowed.
     """
 
-    name: str = "custom"
-    description: str = ""
-    systems: tuple[str, ...] = ("GPS",)
-    constellation: str = "nominal"
-    sats: tuple[str, ...] = ()
-    rename: tuple[tuple[str, str], ...] = ()
-    t_start_s: float = 0.0
-    duration_s: float = 100.0
-    step_s: float = 1.0
-    trajectory: str = "static"
-    lat_deg: float = 30.67
-    lon_deg: float = 104.06
-    height_m: float = 500.0
-    speed_mps: float = 0.0
-    heading_deg: float = 90.0
-    climb_mps: float = 0.0
-    cruise_speed_mps: float = 230.0
-    cruise_alt_m: float = 10000.0
-    climb_s: float = 900.0
-    turn_start_s: float = 2400.0
-    turn_rate_dps: float = 1.5
-    turn_deg: float = 180.0
-    clock_drift_mps: float = 0.0
-    mask_deg: float = 5.0
-    sigma_m: float = 33.0
-    noise: str = "gaussian"
-    mixture_eps: float = 0.1
-    mixture_scale: float = 5.0
-    student_nu: float = 3.0
-    noise_corr_s: float = 0.0
-    faults: tuple[Fault, ...] = ()
-    restrict: tuple[Restrict, ...] = ()
-    baro: bool = False
-    sigma_baro_m: float = 50.0
-    algorithm: str = "parity"
-    p_fa: float = 1e-3
-    p_md: float = 1e-3
-    hal_m: float = 556.0
-    val_m: float = 1000.0
-    seed: int = 0
+    name: str = key("custom", "scenario name (shown in outputs)", group="scenario")
+    description: str = key("", "one-line description", group="scenario")
+    systems: tuple[str, ...] = key(("GPS",), "satellite systems to use", kind="choices",
+                                   choices=tuple(SYSTEMS), group="constellation")
+    constellation: str = key("nominal", '"nominal" or the path of a YUMA almanac (GPS)',
+                             kind="custom", parse=_parse_path_or_nominal,
+                             group="constellation")
+    sats: tuple[str, ...] = key((), "satellites to use (empty: all of the systems)",
+                                kind="strings", group="constellation")
+    rename: tuple[tuple[str, str], ...] = key(
+        (), "rename satellites, old = new (to match a paper's PRNs)", kind="custom",
+        parse=_parse_rename, group="constellation")
+    t_start_s: float = key(0.0, "constellation time at t = 0 (a recording: the start of "
+                           "the cut)", unit="s", lo=0.0, hi=1e9, group="time")
+    duration_s: float = key(100.0, "length of the run", unit="s", lo=0.0, hi=1e9,
+                            group="time")
+    step_s: float = key(1.0, "epoch interval (a recording: thinned to at least this)",
+                        unit="s", lo=0.0, lo_open=True, hi=86400.0, group="time")
+    trajectory: str = key("static", "receiver motion", kind="choice",
+                          choices=TRAJECTORY_KINDS, group="receiver")
+    lat_deg: float = key(30.67, "receiver start latitude", unit="deg", lo=-90.0, hi=90.0,
+                         group="receiver")
+    lon_deg: float = key(104.06, "receiver start longitude", unit="deg", lo=-180.0,
+                         hi=360.0, group="receiver")
+    height_m: float = key(500.0, "receiver start height (ellipsoidal)", unit="m",
+                          lo=-1000.0, hi=1.0e6, group="receiver")
+    speed_mps: float = key(0.0, "ground speed (line)", unit="m/s", lo=0.0, hi=1.0e4,
+                           group="receiver")
+    heading_deg: float = key(90.0, "heading, clockwise from north (line, flight)",
+                             unit="deg", lo=-360.0, hi=360.0, group="receiver")
+    climb_mps: float = key(0.0, "vertical speed (line)", unit="m/s", lo=-1.0e3, hi=1.0e3,
+                           group="receiver")
+    cruise_speed_mps: float = key(230.0, "cruise speed (flight)", unit="m/s", lo=0.0,
+                                  lo_open=True, hi=1.0e4, group="receiver")
+    cruise_alt_m: float = key(10000.0, "cruise altitude (flight)", unit="m", lo=-1000.0,
+                              hi=1.0e6, group="receiver")
+    climb_s: float = key(900.0, "duration of the climb (flight)", unit="s", lo=0.0,
+                         lo_open=True, hi=1e7, group="receiver")
+    turn_start_s: float = key(2400.0, "start of the banked turn (flight)", unit="s", lo=0.0,
+                              hi=1e9, group="receiver")
+    turn_rate_dps: float = key(1.5, "turn rate (flight)", unit="deg/s", lo=0.0,
+                               lo_open=True, hi=90.0, group="receiver")
+    turn_deg: float = key(180.0, "total turn (flight)", unit="deg", lo=0.0, hi=3600.0,
+                          group="receiver")
+    clock_drift_mps: float = key(0.0, "receiver clock drift", unit="m/s", lo=-1.0e5,
+                                 hi=1.0e5, group="receiver")
+    mask_deg: float = key(5.0, "elevation mask", unit="deg", lo=-10.0, hi=89.0,
+                          ui_lo=0.0, ui_hi=40.0, ui_step=1.0, group="measurements")
+    sigma_m: float = key(33.0, "pseudorange noise 1-sigma (a recording: assumed, at the "
+                         "zenith)", unit="m", lo=0.0, lo_open=True, hi=1.0e4, ui_lo=0.1,
+                         ui_hi=50.0, ui_step=0.1, group="measurements")
+    noise: str = key("gaussian", "noise distribution", kind="choice", choices=NOISE_KINDS,
+                     group="measurements")
+    mixture_eps: float = key(0.1, "outlier share of the Gaussian mixture", lo=0.0,
+                             lo_open=True, hi=1.0, hi_open=True, group="measurements")
+    mixture_scale: float = key(5.0, "outlier sigma / core sigma of the mixture", lo=0.0,
+                               lo_open=True, hi=1.0e3, group="measurements")
+    student_nu: float = key(3.0, "degrees of freedom of the Student-t noise", lo=0.0,
+                            lo_open=True, hi=1.0e6, group="measurements")
+    noise_corr_s: float = key(0.0, "noise correlation time (first-order Gauss-Markov); "
+                              "0 = white", unit="s", lo=0.0, hi=1.0e6, ui_lo=0.0,
+                              ui_hi=3600.0, ui_step=5.0, group="measurements")
+    faults: tuple[Fault, ...] = key((), "injected faults: [[faults]] tables (sat, kind "
+                                    "step|ramp, t0_s, t1_s, bias_m | rate_mps)",
+                                    kind="custom", parse=_parse_faults, group="faults")
+    restrict: tuple[Restrict, ...] = key((), "windows tracking only some satellites: "
+                                         "[[restrict]] tables (sats, t0_s, t1_s)",
+                                         kind="custom", parse=_parse_restrict,
+                                         group="measurements")
+    baro: bool = key(False, "add a barometric altimeter", group="measurements")
+    sigma_baro_m: float = key(50.0, "barometric altitude 1-sigma", unit="m", lo=0.0,
+                              lo_open=True, hi=1.0e4, group="measurements")
+    algorithm: str = key("parity", "integrity algorithm (raim list)", kind="custom",
+                         parse=_parse_algorithm, group="integrity")
+    p_fa: float = key(1e-3, "false-alarm probability", lo=0.0, hi=1.0, lo_open=True,
+                      hi_open=True, group="integrity")
+    p_md: float = key(1e-3, "missed-detection probability", lo=0.0, hi=1.0, lo_open=True,
+                      hi_open=True, group="integrity")
+    hal_m: float = key(556.0, "horizontal alert limit", unit="m", lo=0.0, lo_open=True,
+                       hi=1.0e6, group="integrity")
+    val_m: float = key(1000.0, "vertical alert limit", unit="m", lo=0.0, lo_open=True,
+                       hi=1.0e6, group="integrity")
+    seed: int = key(0, "random seed (same seed, same result)", lo=0, hi=2**32 - 1,
+                    group="integrity")
+    source: str = key("sim", "where the pseudoranges come from", kind="choice",
+                      choices=SOURCES, group="recording")
+    obs: str = key("", "RINEX observation file (source rinex)", group="recording")
+    nav: str = key("", "RINEX navigation file (source rinex)", group="recording")
+    signals: tuple[str, ...] = key((), "observation codes to use, e.g. [\"C1C\", \"C2I\"] "
+                                   "(empty: the defaults)", kind="strings",
+                                   group="recording")
+    truth_ecef_m: tuple[float, ...] = key((), "true receiver position [x, y, z] of a "
+                                          "recording (empty: the header position)",
+                                          unit="m", kind="custom", parse=_parse_truth,
+                                          group="recording")
     options: tuple[tuple[str, Any], ...] = ()
-    source: str = "sim"
-    obs: str = ""
-    nav: str = ""
-    signals: tuple[str, ...] = ()
-    truth_ecef_m: tuple[float, ...] = ()
+    notes: tuple[str, ...] = dataclasses.field(default=(), compare=False)
 
     def __post_init__(self):
-        _validate(self)
+        set_ = object.__setattr__
+        for name, k in SCENARIO_KEYS.items():
+            set_(self, name, k.coerce(getattr(self, name)))
+        spec = algorithms.get(self.algorithm)
+        given = self.options.items() if isinstance(self.options, dict) else self.options
+        try:
+            given = dict(given)
+        except (TypeError, ValueError):
+            raise SchemaError(f"options must be a table of algorithm options, got "
+                              f"{self.options!r}") from None
+        resolved = spec.resolve_options(given)
+        set_(self, "options", tuple(sorted((k, resolved[k]) for k in given)))
+        set_(self, "notes", tuple(self.notes))
+        _check_together(self)
 
     # -- convenience -------------------------------------------------------------------
     def replace(self, **changes) -> Scenario:
-        """A copy with ``changes`` applied; keys may be fields or algorithm options."""
-        return from_dict({**self.to_dict(), **changes})
+        """A copy with ``changes`` applied; keys may be fields or algorithm options.
+
+        Changing ``algorithm`` drops the options of the previous algorithm that the new one
+        does not take (they would not mean anything to it); options given in ``changes``
+        must belong to the new algorithm.
+        """
+        d = self.to_dict()
+        if "algorithm" in changes and changes["algorithm"] != self.algorithm:
+            new_keys = algorithms.get(changes["algorithm"]).option_keys
+            for name, _ in self.options:
+                if name not in new_keys:
+                    d.pop(name, None)
+        d.update(changes)
+        return from_dict(d, notes=self.notes)
 
     def with_faults(self, *faults: Fault) -> Scenario:
         return dataclasses.replace(self, faults=tuple(faults))
@@ -134,24 +314,20 @@ class Scenario:
         return dict(self.options).get(key, default)
 
     def algorithm_options(self) -> dict[str, Any]:
-        """The options of the chosen algorithm: its defaults, overridden by this scenario."""
-        spec = algorithms.get(self.algorithm)
-        return {**dict(spec.options), **{k: v for k, v in self.options if k in spec.options}}
+        """Every option of the chosen algorithm: its defaults, overridden by this scenario."""
+        return algorithms.get(self.algorithm).resolve_options(dict(self.options))
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict (TOML-like) form; ``from_dict(s.to_dict()) == s``."""
         d: dict[str, Any] = {}
         for f in fields(self):
+            if f.name in ("options", "notes"):
+                continue
             v = getattr(self, f.name)
-            if f.name == "faults":
+            if f.name in ("faults", "restrict"):
                 v = [x.to_dict() for x in v]
-            elif f.name == "restrict":
-                v = [{"sats": list(r.sats), "t0_s": r.t0_s,
-                      **({"t1_s": r.t1_s} if math.isfinite(r.t1_s) else {})} for r in v]
             elif f.name == "rename":
                 v = dict(v)
-            elif f.name == "options":
-                continue
             elif isinstance(v, tuple):
                 v = list(v)
             d[f.name] = v
@@ -159,103 +335,109 @@ class Scenario:
         return d
 
 
-_FIELD_NAMES = {f.name for f in fields(Scenario)}
-#: Where the pseudoranges come from: simulated, or a RINEX recording (raimcore.sky.recording).
-SOURCES = ("sim", "rinex")
+#: The scenario keys, from the field declarations above (name -> Key).
+SCENARIO_KEYS: dict[str, Key] = keys_of(Scenario)
 
 
-def _option_keys() -> dict[str, Any]:
-    keys: dict[str, Any] = {}
+def scenario_keys() -> dict[str, Key]:
+    """The scenario keys (name -> :class:`~raimcore.schema.Key`)."""
+    return dict(SCENARIO_KEYS)
+
+
+def all_keys() -> dict[str, Key]:
+    """Scenario keys and every registered algorithm's options (name -> Key)."""
+    out = dict(SCENARIO_KEYS)
     for name in algorithms.names():
-        keys.update(algorithms.get(name).options)
-    return keys
+        for k in algorithms.get(name).options:
+            out.setdefault(k.name, dataclasses.replace(k, group=k.group or name))
+    return out
 
 
-def from_dict(d: dict[str, Any]) -> Scenario:
-    """Build a :class:`Scenario` from a TOML-like dict; unknown keys raise ``ValueError``."""
-    d = dict(d)
-    opts = dict(d.pop("options", {}) or {})
-    known_opts = _option_keys()
-    kw: dict[str, Any] = {}
-    for key, val in d.items():
-        if key in _FIELD_NAMES:
-            kw[key] = val
-        elif key in known_opts:
-            opts[key] = val
-        else:
-            allowed = sorted(_FIELD_NAMES - {"options"}) + sorted(known_opts)
-            raise ValueError(f"unknown scenario key {key!r}; allowed keys: {', '.join(allowed)}")
-    bad = [k for k in opts if k not in known_opts]
-    if bad:
-        raise ValueError(f"unknown algorithm option(s) {', '.join(bad)}; allowed: "
-                         f"{', '.join(sorted(known_opts))}")
-    if "faults" in kw:
-        kw["faults"] = tuple(f if isinstance(f, Fault) else _fault_from_dict(f)
-                             for f in kw["faults"])
-    if "restrict" in kw:
-        kw["restrict"] = tuple(r if isinstance(r, Restrict) else Restrict(
-            tuple(r["sats"]), float(r.get("t0_s", 0.0)), float(r.get("t1_s", math.inf)))
-            for r in kw["restrict"])
-    if "rename" in kw:
-        ren = kw["rename"]
-        kw["rename"] = tuple(sorted(ren.items() if isinstance(ren, dict) else ren))
-    for f in fields(Scenario):  # TOML integers for float fields (duration_s = 100)
-        if f.name in kw and isinstance(f.default, float) and isinstance(kw[f.name], int) \
-                and not isinstance(kw[f.name], bool):
-            kw[f.name] = float(kw[f.name])
-    if "truth_ecef_m" in kw:
-        kw["truth_ecef_m"] = tuple(float(x) for x in kw["truth_ecef_m"])
-    for key in ("systems", "sats", "signals"):
-        if key in kw:
-            v = kw[key]
-            kw[key] = (v,) if isinstance(v, str) else tuple(v)
-    kw["options"] = tuple(sorted(opts.items()))
-    return Scenario(**kw)
+def _option_owners() -> dict[str, list[str]]:
+    owners: dict[str, list[str]] = {}
+    for name in algorithms.names():
+        for k in algorithms.get(name).options:
+            owners.setdefault(k.name, []).append(name)
+    return owners
 
 
-def _fault_from_dict(f: dict) -> Fault:
-    allowed = {"sat", "kind", "t0_s", "t1_s", "bias_m", "rate_mps"}
-    unknown = set(f) - allowed
-    if unknown:
-        raise ValueError(f"unknown fault key(s) {', '.join(sorted(unknown))}; allowed: "
-                         f"{', '.join(sorted(allowed))}")
-    return Fault(**{k: (float(v) if k not in ("sat", "kind") else v) for k, v in f.items()})
-
-
-def _validate(s: Scenario) -> None:
-    for sys_name in s.systems:
-        check_choice("systems", sys_name, ("GPS", "BDS"))
+def _check_together(s: Scenario) -> None:
+    """Checks that involve several keys (each key alone is already valid)."""
     if not s.systems:
-        raise ValueError("systems must name at least one of GPS, BDS")
-    check_positive("duration_s", s.duration_s, allow_zero=True)
-    check_positive("step_s", s.step_s)
-    if s.duration_s / s.step_s > 2_000_000:
-        raise ValueError("duration_s / step_s must be at most 2,000,000 epochs")
-    check_choice("trajectory", s.trajectory, TRAJECTORY_KINDS)
-    check_range("lat_deg", s.lat_deg, -90.0, 90.0)
-    check_range("lon_deg", s.lon_deg, -180.0, 360.0)
-    check_range("mask_deg", s.mask_deg, -10.0, 89.0)
-    check_positive("sigma_m", s.sigma_m)
-    check_choice("noise", s.noise, NOISE_KINDS)
-    check_positive("noise_corr_s", s.noise_corr_s, allow_zero=True)
-    check_probability("p_fa", s.p_fa)
-    check_probability("p_md", s.p_md)
-    check_positive("sigma_baro_m", s.sigma_baro_m)
-    check_positive("hal_m", s.hal_m)
-    check_positive("val_m", s.val_m)
-    check_int("seed", s.seed, 0)
-    if not isinstance(s.baro, bool):
-        raise ValueError(f"baro must be true or false, got {s.baro!r}")
-    check_choice("source", s.source, SOURCES)
+        raise SchemaError(f"systems must name at least one of {', '.join(SYSTEMS)}")
+    if len(set(s.systems)) != len(s.systems):
+        raise SchemaError(f"systems lists a system twice: {list(s.systems)}")
+    if s.duration_s / s.step_s > MAX_EPOCHS:
+        raise SchemaError(f"duration_s / step_s must be at most {MAX_EPOCHS:,} epochs, got "
+                          f"{s.duration_s:g} / {s.step_s:g}")
     if s.source == "rinex" and not (s.obs and s.nav):
-        raise ValueError("source 'rinex' needs obs and nav (RINEX observation and navigation "
-                         "file paths)")
-    if len(s.truth_ecef_m) not in (0, 3):
-        raise ValueError(f"truth_ecef_m must be [] or [x, y, z] in metres, got "
-                         f"{list(s.truth_ecef_m)}")
-    if s.algorithm not in algorithms.names():
-        raise ValueError(f"algorithm must be one of {', '.join(algorithms.names())}; "
-                         f"got {s.algorithm!r}")
+        raise SchemaError("source \"rinex\" needs obs and nav (RINEX observation and "
+                          "navigation file paths)")
+    if s.source == "sim" and (s.obs or s.nav or s.signals or s.truth_ecef_m):
+        used = [k for k in ("obs", "nav", "signals", "truth_ecef_m") if getattr(s, k)]
+        raise SchemaError(f"{', '.join(used)} apply to recordings only (source = \"rinex\"); "
+                          f"this scenario is simulated")
+    letters = {SYSTEMS[x] for x in s.systems}
+    for where, names in (("sats", s.sats), ("faults", [f.sat for f in s.faults]),
+                         ("restrict", [x for r in s.restrict for x in r.sats])):
+        for n in names:
+            if n[:1] not in letters:
+                raise SchemaError(f"{where}: satellite {n!r} is not of the chosen systems "
+                                  f"({', '.join(s.systems)}: names start with "
+                                  f"{', '.join(sorted(letters))})")
+    if s.source == "sim" and s.constellation == "nominal":
+        from .sky.constellations import builtin
+
+        base = builtin(s.systems).names
+        mapping = dict(s.rename)
+        missing = [a for a in mapping if a not in base]
+        if missing:
+            raise SchemaError(f"rename: unknown satellite(s) {', '.join(missing)} in the "
+                              f"nominal {'+'.join(s.systems)} constellation")
+        known = [mapping.get(n, n) for n in base]
+        for where, names in (("sats", s.sats), ("faults", [f.sat for f in s.faults]),
+                             ("restrict", [x for r in s.restrict for x in r.sats])):
+            bad = [n for n in names if n not in known]
+            if bad:
+                raise SchemaError(f"{where}: satellite(s) {', '.join(bad)} not in the nominal "
+                                  f"{'+'.join(s.systems)} constellation"
+                                  f"{did_you_mean(bad[0], known)}")
+
+
+def from_dict(d: dict[str, Any], notes: tuple[str, ...] = ()) -> Scenario:
+    """Build a :class:`Scenario` from a TOML-like dict: scenario keys and the algorithm's
+    options side by side (or under ``options``). Unknown keys raise with a "did you mean".
+    """
+    if not isinstance(d, dict):
+        raise SchemaError(f"a scenario must be a table of keys, got {type(d).__name__}")
+    d = dict(d)
+    opts = d.pop("options", {}) or {}
+    if not isinstance(opts, dict):
+        raise SchemaError(f"options must be a table of algorithm options, got {opts!r}")
+    opts = dict(opts)
+    owners = _option_owners()
+    kw: dict[str, Any] = {}
+    for k, val in d.items():
+        if k in SCENARIO_KEYS:
+            kw[k] = val
+        elif k in owners:
+            opts[k] = val
+        else:
+            raise SchemaError(f"unknown scenario key {k!r}"
+                              f"{did_you_mean(str(k), [*SCENARIO_KEYS, *owners])}; "
+                              f"'raim keys' lists every key")
+    algorithm = kw.get("algorithm", SCENARIO_KEYS["algorithm"].default)
+    spec = algorithms.get(algorithm) if isinstance(algorithm, str) else None
+    if spec is not None:
+        for k in opts:
+            if k not in spec.option_keys:
+                takers = ", ".join(owners.get(k, [])) or "no algorithm"
+                raise SchemaError(f"option {k!r} does not belong to algorithm "
+                                  f"{algorithm!r} (it is an option of {takers}); "
+                                  f"{algorithm}'s options: "
+                                  f"{', '.join(spec.option_keys) or 'none'}")
+    kw["options"] = opts
+    return Scenario(**kw, notes=tuple(notes))
 
 
 # -- named scenarios -------------------------------------------------------------------
@@ -270,29 +452,63 @@ def list_scenarios() -> dict[str, str]:
     for entry in sorted(_scenario_dir().iterdir(), key=lambda p: p.name):
         if entry.name.endswith(".toml"):
             d = tomllib.loads(entry.read_text())
-            out[entry.name[:-5]] = d.get("description", "").strip().splitlines()[0:1]
-    return {k: (v[0] if v else "") for k, v in out.items()}
+            lines = d.get("description", "").strip().splitlines()
+            out[entry.name[:-5]] = lines[0] if lines else ""
+    return out
+
+
+def recording_scenario(obs, nav, **overrides) -> Scenario:
+    """A :class:`Scenario` for a RINEX recording with real-data defaults: GPS and BDS (those
+    present), the whole recording at its own interval, ``sigma_m`` 1 m, a 10-degree mask;
+    ``overrides`` are scenario keys."""
+    from .sky.recording import recording_keys
+
+    d = {**recording_keys(obs), "nav": str(nav)}
+    d.update(overrides)
+    return from_dict(d)
+
+
+def scenario_report(name: str) -> str | None:
+    """The Markdown report beside a built-in scenario (``scenarios/NAME.md``), or None."""
+    entry = _scenario_dir() / f"{name}.md"
+    return entry.read_text() if entry.is_file() else None
 
 
 def load_scenario(name_or_path, **overrides) -> Scenario:
     """Load a built-in scenario by name or a TOML file by path, then apply ``overrides``.
 
+    When ``overrides`` choose another algorithm, options of the file that the new
+    algorithm does not take are left out, and the scenario's ``notes`` say so.
+
     Raises
     ------
     ValueError for an unknown name (listing the built-in ones), a missing file, a TOML
-    syntax error (with its position) or an unknown key.
+    syntax error (with its position), an unknown key or a value its key refuses.
     """
     text, where = _scenario_text(name_or_path)
     try:
         d = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{where}: invalid TOML: {exc}") from None
+        raise SchemaError(f"{where}: invalid TOML: {exc}") from None
     d.setdefault("name", Path(str(name_or_path)).stem)
+    notes = []
+    new_alg = overrides.get("algorithm")
+    if new_alg is not None and new_alg != d.get("algorithm") and isinstance(new_alg, str) \
+            and new_alg in algorithms.names():
+        owners = _option_owners()
+        takes = algorithms.get(new_alg).option_keys
+        dropped = [k for k in d if k in owners and k not in SCENARIO_KEYS and k not in takes
+                   and k not in overrides]
+        for k in dropped:
+            d.pop(k)
+        if dropped:
+            notes.append(f"{where} sets {', '.join(dropped)} for {d.get('algorithm')}; "
+                         f"{new_alg} does not take them: left out")
     d.update(overrides)
     try:
-        return from_dict(d)
+        return from_dict(d, notes=tuple(notes))
     except ValueError as exc:
-        raise ValueError(f"{where}: {exc}") from None
+        raise SchemaError(f"{where}: {exc}") from None
 
 
 def _scenario_text(name_or_path) -> tuple[str, str]:
@@ -300,349 +516,23 @@ def _scenario_text(name_or_path) -> tuple[str, str]:
     if s.endswith(".toml") or "/" in s or Path(s).exists():
         p = Path(s)
         if not p.is_file():
-            raise ValueError(f"scenario file {s!r} does not exist")
-        return p.read_text(), str(p)
+            raise SchemaError(f"scenario file {s!r} does not exist")
+        try:
+            return p.read_text(), str(p)
+        except (OSError, UnicodeDecodeError) as exc:
+            raise SchemaError(f"scenario file {s!r} cannot be read: {exc}") from None
     entry = _scenario_dir() / f"{s}.toml"
     if not entry.is_file():
-        raise ValueError(f"unknown scenario {s!r}; built-in scenarios: "
-                         f"{', '.join(list_scenarios())} (or give a path to a .toml file)")
+        names = list(list_scenarios())
+        raise SchemaError(f"unknown scenario {s!r}{did_you_mean(s, names)}; built-in "
+                          f"scenarios: {', '.join(names)} (or give a path to a .toml file)")
     return entry.read_text(), f"scenario {s}"
 
 
 def parse_value(text: str):
-    """Parse a ``--set`` value as a TOML value (numbers, booleans, arrays), else a string."""
+    """Parse a ``--set`` value as a TOML value (numbers, booleans, arrays, tables), else a
+    string. ``nan`` and ``inf`` are parsed as numbers (and then refused by the key)."""
     try:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
-
-
-# -- the engine ------------------------------------------------------------------------
-
-def build_epoch_data(s: Scenario) -> EpochData:
-    """Simulate every epoch of a scenario: geometry, visibility, pseudoranges, faults.
-
-    Random streams (noise, receiver clock, baro) are spawned from ``s.seed`` with
-    ``SeedSequence``, so each is reproducible on its own. ``source = "rinex"`` reads a
-    recording instead (:func:`raimcore.sky.recording.recording_epoch_data`).
-    """
-    if s.source == "rinex":
-        from .sky.recording import recording_epoch_data
-
-        return recording_epoch_data(s)
-    const = (builtin(s.systems) if s.constellation == "nominal"
-             else read_yuma(s.constellation))
-    const = const if set(const.systems) <= set(s.systems) else const.subset(
-        [n for n, sy in zip(const.names, const.systems, strict=True) if sy in s.systems])
-    if s.sats:
-        const = const.subset(list(s.sats))
-    if s.rename:
-        const = const.renamed(dict(s.rename))
-    n_ep = int(math.floor(s.duration_s / s.step_s + 1e-9)) + 1
-    t = np.arange(n_ep, dtype=float) * s.step_s
-    if s.trajectory == "static":
-        traj = static(t, s.lat_deg, s.lon_deg, s.height_m)
-    elif s.trajectory == "line":
-        traj = straight_line(t, s.lat_deg, s.lon_deg, s.height_m, s.speed_mps, s.heading_deg,
-                             s.climb_mps)
-    else:
-        traj = flight_profile(t, s.lat_deg, s.lon_deg, s.height_m, s.heading_deg,
-                              s.cruise_speed_mps, s.cruise_alt_m, s.climb_s, s.turn_start_s,
-                              s.turn_rate_dps, s.turn_deg)
-    sv = const.positions_ecef_m(s.t_start_s + t)
-    systems = const.sys_names
-    sys_idx = np.array([systems.index(x) for x in const.systems], dtype=int)
-    cc = clock_columns(sys_idx, len(systems))
-    h_enu, rng_m = geometry_rows(sv, traj.pos_ecef_m, cc, frame="enu")
-    el = np.arcsin(np.clip(-h_enu[..., 2], -1.0, 1.0))
-    az = np.mod(np.arctan2(-h_enu[..., 0], -h_enu[..., 1]), 2 * np.pi)
-    used = (el >= math.radians(s.mask_deg)) & np.asarray(const.healthy)[None, :]
-    apply_restrict(used, t, const.names, s.restrict)
-    bias = fault_biases(s.faults, t, const.names)
-    noise = make_noise(s.noise, s.sigma_m, mixture_eps=s.mixture_eps,
-                       mixture_scale=s.mixture_scale, student_nu=s.student_nu,
-                       corr_s=s.noise_corr_s)
-    ss = np.random.SeedSequence(int(s.seed))
-    noise_ss, clock_ss, baro_ss = ss.spawn(3)
-    eps = noise.sample(np.random.default_rng(noise_ss), rng_m.shape, t_s=t)
-    clk0 = np.random.default_rng(clock_ss).uniform(-3e5, 3e5, len(systems))
-    clock = clk0[None, :] + s.clock_drift_mps * t[:, None]
-    pr = rng_m + clock @ cc.T + eps + bias
-    pr = np.where(used, pr, np.nan)
-    baro_alt = None
-    if s.baro:
-        baro_alt = traj.h_m + s.sigma_baro_m * np.random.default_rng(baro_ss).standard_normal(
-            n_ep)
-    return EpochData(
-        t_s=t, sat_names=tuple(const.names), sys_idx=sys_idx, systems=systems,
-        pos_sv_ecef_m=sv, pr_m=pr, used=used, az_rad=az, el_rad=el,
-        sigma_m=np.full(pr.shape, s.sigma_m), noise=noise,
-        pos_rx_true_ecef_m=traj.pos_ecef_m, vel_rx_true_ecef_mps=traj.vel_ecef_mps,
-        fault_bias_m=bias, p_fa=s.p_fa, p_md=s.p_md, seed=int(s.seed),
-        baro_alt_m=baro_alt, sigma_baro_m=s.sigma_baro_m if s.baro else None,
-        hal_m=s.hal_m, val_m=s.val_m)
-
-
-def apply_restrict(used, t, sat_names, restrict) -> None:
-    """Clear ``used`` (E, S) in place outside each restriction's satellites and window."""
-    for r in restrict:
-        unknown = [x for x in r.sats if x not in sat_names]
-        if unknown:
-            raise ValueError(f"restrict: unknown satellite(s) {', '.join(unknown)}")
-        window = (t >= r.t0_s) & (t < r.t1_s)
-        keep = np.isin(np.array(sat_names), list(r.sats))
-        used[window] &= keep[None, :]
-
-
-@dataclass(frozen=True)
-class ScenarioResult:
-    """A scenario, its simulated data, the algorithm's raw output and the result table."""
-
-    scenario: Scenario
-    data: EpochData
-    output: AlgorithmOutput
-    table: ResultTable
-    summary: dict[str, Any] = field(default_factory=dict)
-
-
-def _names(mask, sat_names) -> np.ndarray:
-    """Per row of a boolean ``(E, S)`` mask, the selected names joined by "+" (object array).
-
-    Rows repeat (the same visible set for minutes), so each distinct row is joined once.
-    """
-    mask = np.asarray(mask, dtype=bool)
-    if mask.size == 0:
-        return np.full(mask.shape[0], "", dtype=object)
-    uniq, inverse = np.unique(mask, axis=0, return_inverse=True)
-    joined = np.array(["+".join(n for n, m in zip(sat_names, row, strict=True) if m)
-                       for row in uniq], dtype=object)
-    return joined[inverse.reshape(-1)]
-
-
-def run_algorithm(spec, data: EpochData, options: dict[str, Any]) -> AlgorithmOutput:
-    """Run ``spec`` on the satellites used at least once, then map back to all of them.
-
-    Satellites never above the mask cannot matter to any algorithm; dropping them first
-    makes every per-satellite array (and the S x S projectors) several times smaller.
-    """
-    cols = np.flatnonzero(data.used.any(axis=0))
-    if cols.size == 0:  # no satellite ever used: nothing to run, every epoch unavailable
-        return unavailable_output(data)
-    small = data.take_sats(cols)
-    out = spec.run(small, options)
-    check_output(spec.name, small, out)
-    return out.expand_sats(cols, data.n_sats)
-
-
-def unavailable_output(data: EpochData) -> AlgorithmOutput:
-    """An output with every epoch "unavailable" (NaN statistics and positions)."""
-    e, s = data.n_epochs, data.n_sats
-    nan = np.full(e, np.nan)
-    return AlgorithmOutput(
-        status=np.full(e, STATUS_UNAVAILABLE, dtype=object), statistic=nan, threshold=nan,
-        alarm=np.zeros(e, dtype=bool), pos_before_ecef_m=np.full((e, 3), np.nan),
-        pos_after_ecef_m=np.full((e, 3), np.nan), excluded=np.zeros((e, s), dtype=bool),
-        isolated=np.full(e, -1, dtype=int))
-
-
-def check_output(name: str, data: EpochData, out: AlgorithmOutput) -> None:
-    """Check that algorithm ``name`` kept the output contract (shapes), or raise."""
-    e, s = data.n_epochs, data.n_sats
-    want = {"status": (e,), "statistic": (e,), "threshold": (e,), "alarm": (e,),
-            "pos_before_ecef_m": (e, 3), "pos_after_ecef_m": (e, 3), "excluded": (e, s),
-            "isolated": (e,)}
-    for key, shape in want.items():
-        got = np.shape(getattr(out, key))
-        if got != shape:
-            raise RuntimeError(f"algorithm {name!r} returned {key} with shape {got}, "
-                               f"expected {shape}")
-    for group, shape in (("columns", (e,)), ("per_sat", (e, s))):
-        for key, val in getattr(out, group).items():
-            if np.shape(val) != shape:
-                raise RuntimeError(f"algorithm {name!r} returned {group}[{key!r}] with shape "
-                                   f"{np.shape(val)}, expected {shape}")
-
-
-def make_table(data: EpochData, out: AlgorithmOutput) -> ResultTable:
-    """The per-epoch result table: algorithm output plus errors and truth."""
-    names = np.array(data.sat_names + ("",), dtype=object)
-    truth = data.pos_rx_true_ecef_m
-    err_b = ecef_to_enu(out.pos_before_ecef_m, truth)
-    err_a = ecef_to_enu(out.pos_after_ecef_m, truth)
-    faulty = (data.fault_bias_m != 0) & data.used
-    # Theoretical detection probability of the snapshot chi-square test for the injected
-    # faults, at the true geometry (spec section 1).
-    pd = np.full(data.n_epochs, np.nan)
-    rows = np.flatnonzero(faulty.any(axis=1))
-    if rows.size:
-        cols = np.flatnonzero(data.used[rows].any(axis=0))
-        used = data.used[np.ix_(rows, cols)]
-        cc = clock_columns(data.sys_idx[cols], len(data.systems))
-        h, _ = geometry_rows(data.pos_sv_ecef_m[rows][:, cols], truth[rows], cc)
-        w = np.where(used, 1.0 / data.sigma_m[np.ix_(rows, cols)] ** 2, 0.0)
-        proj, _ = _whitened_projector(h, w)
-        n_states = 3 + np.any(used[..., None] & (cc[None] > 0), axis=1).sum(-1)
-        dof = used.sum(-1) - n_states
-        pd[rows] = detection_probability(proj, data.fault_bias_m[np.ix_(rows, cols)], w, dof,
-                                         data.p_fa)
-    thr = np.asarray(out.threshold, dtype=float)
-    stat = np.asarray(out.statistic, dtype=float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normalised = stat / thr
-    iso = np.asarray(out.isolated)
-    cols = {
-        "t_s": data.t_s,
-        "n_sat": data.used.sum(-1),
-        "status": np.asarray(out.status, dtype=object),
-        "statistic": stat,
-        "threshold": thr,
-        "normalised": normalised,
-        "alarm": np.asarray(out.alarm, dtype=bool),
-        "isolated": names[np.where(iso >= 0, iso, -1)],
-        "excluded": _names(out.excluded, data.sat_names),
-        "faulty_truth": _names(faulty, data.sat_names),
-        "hpe_before_m": np.hypot(err_b[:, 0], err_b[:, 1]),
-        "hpe_after_m": np.hypot(err_a[:, 0], err_a[:, 1]),
-        "vpe_before_m": np.abs(err_b[:, 2]),
-        "vpe_after_m": np.abs(err_a[:, 2]),
-        "pd_theory": pd,
-    }
-    for k, v in out.columns.items():
-        if k in cols:
-            raise ValueError(f"algorithm column {k!r} clashes with an engine column")
-        cols[k] = np.asarray(v)
-    per_sat = {"el_deg": np.degrees(data.el_rad), "az_deg": np.degrees(data.az_rad),
-               "used": data.used, "fault_bias_m": data.fault_bias_m,
-               "excluded": np.asarray(out.excluded)}
-    per_sat.update({k: np.asarray(v) for k, v in out.per_sat.items()})
-    return ResultTable(cols, per_sat, data.sat_names)
-
-
-def summarize(table: ResultTable) -> dict[str, Any]:
-    """Headline numbers: first alarm, detection and correct-isolation rates, errors.
-
-    Algorithms with memory (a sliding window, a filter) report it in an optional
-    ``memory_epochs`` column: the epochs right after a fault whose memory still holds a
-    faulted epoch are neither faulted nor fault-free; they are left out of the
-    false-alarm rate and counted as ``fault_memory_epochs``.
-    """
-    t = table["t_s"]
-    faulted = table["faulty_truth"] != ""
-    alarm = table["alarm"]
-    excl = table["excluded"]
-    after = in_fault_memory(faulted, table["memory_epochs"] if "memory_epochs" in table
-                             else None)
-    nominal = ~faulted & ~after & (table["status"] != "unavailable")
-    out: dict[str, Any] = {
-        "epochs": len(table),
-        "faulted_epochs": int(faulted.sum()),
-        "unavailable_epochs": int(np.sum(table["status"] == "unavailable")),
-        "false_alarm_rate": float(alarm[nominal].mean()) if nominal.any() else math.nan,
-    }
-    if after.any():
-        out["fault_memory_epochs"] = int(after.sum())
-    if faulted.any():
-        first = np.flatnonzero(faulted & alarm)
-        out["first_fault_t_s"] = float(t[faulted][0])
-        out["first_alarm_t_s"] = float(t[first[0]]) if first.size else None
-        out["detection_rate"] = float(alarm[faulted].mean())
-        out["pd_theory_mean"] = float(np.nanmean(table["pd_theory"][faulted]))
-        out["correct_isolation_rate"] = float(np.mean(excl[faulted] == table["faulty_truth"][
-            faulted]))
-        out["hpe_before_faulted_mean_m"] = float(np.nanmean(table["hpe_before_m"][faulted]))
-        out["hpe_after_faulted_mean_m"] = float(np.nanmean(table["hpe_after_m"][faulted]))
-    if nominal.any():
-        out["hpe_nominal_mean_m"] = float(np.nanmean(table["hpe_before_m"][nominal]))
-    # 3-D position RMSE over every epoch with a position (seed 002 Table 1 compares these).
-    for when in ("before", "after"):
-        e2 = table[f"hpe_{when}_m"].astype(float) ** 2 + table[f"vpe_{when}_m"].astype(float) ** 2
-        if np.isfinite(e2).any():
-            out[f"rmse_{when}_m"] = float(np.sqrt(np.nanmean(e2)))
-    if "n_eff" in table and np.isfinite(table["n_eff"].astype(float)).any():
-        out["n_eff_mean"] = float(np.nanmean(table["n_eff"].astype(float)))
-    out.update(_summarize_pl(table))
-    return out
-
-
-def in_fault_memory(faulted, memory_epochs) -> np.ndarray:
-    """(E,) bool: not faulted, but a faulted epoch lies within the last ``memory_epochs``
-    epochs (``memory_epochs`` (E,) ints, or None for memoryless algorithms)."""
-    faulted = np.asarray(faulted, dtype=bool)
-    if memory_epochs is None or not faulted.any():
-        return np.zeros_like(faulted)
-    k = np.arange(faulted.size)
-    last = np.maximum.accumulate(np.where(faulted, k, -1))
-    mem = np.nan_to_num(np.asarray(memory_epochs, dtype=float), nan=1.0)
-    return ~faulted & (last >= 0) & (k - last < mem)
-
-
-def _summarize_pl(table: ResultTable) -> dict[str, Any]:
-    """Protection-level headlines for algorithms with ``hpl_m`` / ``vpl_m`` columns (and,
-    for solution separation, the ``*_nobaro_m`` variants: how often the baro lowers them)."""
-    out: dict[str, Any] = {}
-    if "hpl_m" not in table or "vpl_m" not in table:
-        return out
-    hpl, vpl = table["hpl_m"].astype(float), table["vpl_m"].astype(float)
-    if np.isfinite(hpl).any():
-        out["hpl_mean_m"] = float(np.nanmean(hpl))
-        out["vpl_mean_m"] = float(np.nanmean(vpl))
-    if "available" in table:
-        out["pl_availability"] = float(np.mean(table["available"].astype(bool)))
-    if "vpl_nobaro_m" in table and "baro_used" in table and table["baro_used"].any():
-        hpl0, vpl0 = table["hpl_nobaro_m"].astype(float), table["vpl_nobaro_m"].astype(float)
-        both = np.isfinite(vpl) & np.isfinite(vpl0)
-        if both.any():
-            out["baro_vpl_not_higher_share"] = float(np.mean(vpl[both] <= vpl0[both]))
-            out["baro_vpl_lower_share"] = float(np.mean(vpl[both] < vpl0[both]))
-            out["baro_hpl_lower_share"] = float(np.mean(hpl[both] < hpl0[both]))
-    return out
-
-
-def run_scenario(s: Scenario | str, **overrides) -> ScenarioResult:
-    """Run one scenario (an object, a built-in name or a TOML path) end to end."""
-    if isinstance(s, str | Path):
-        s = load_scenario(s, **overrides)
-    elif overrides:
-        s = s.replace(**overrides)
-    data = build_epoch_data(s)
-    out = run_algorithm(algorithms.get(s.algorithm), data, s.algorithm_options())
-    table = make_table(data, out)
-    return ScenarioResult(s, data, out, table, summarize(table))
-
-
-def compare_algorithms(s: Scenario | str, names: list[str] | None = None,
-                       **overrides) -> list[ScenarioResult]:
-    """Run several algorithms on the same measurements (one noise draw, the same faults).
-
-    Parameters
-    ----------
-    s : a scenario object, a built-in name or a TOML path.
-    names : algorithm names (default: every registered algorithm).
-    overrides : scenario keys or algorithm options, as for :func:`run_scenario`.
-
-    Returns
-    -------
-    One :class:`ScenarioResult` per algorithm, in the order of ``names``. An algorithm
-    that cannot run on these measurements reports "unavailable" epochs, as in a single run.
-
-    Raises
-    ------
-    ValueError
-        An unknown algorithm name (the message lists the registered ones).
-    """
-    if isinstance(s, str | Path):
-        s = load_scenario(s, **overrides)
-    elif overrides:
-        s = s.replace(**overrides)
-    names = list(algorithms.names() if names is None else names)
-    if not names:
-        raise ValueError("names must list at least one algorithm")
-    specs = [algorithms.get(n) for n in names]  # unknown names fail before any work
-    data = build_epoch_data(s)  # the measurements are drawn once, shared by all
-    results = []
-    for spec in specs:
-        sa = dataclasses.replace(s, algorithm=spec.name)
-        out = run_algorithm(spec, data, sa.algorithm_options())
-        table = make_table(data, out)
-        results.append(ScenarioResult(sa, data, out, table, summarize(table)))
-    return results

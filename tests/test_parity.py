@@ -148,7 +148,7 @@ def test_no_isolation_with_one_redundant_measurement():
     ({"p_fa": 1.5}, "p_fa must be a probability"),
     ({"p_fa": 0.0}, "p_fa must be a probability"),
     ({"sigma_m": -1.0}, "sigma_m must be finite and > 0"),
-    ({"z": np.ones(3)}, "z must have 6 measurements"),
+    ({"z": np.ones(3)}, r"z must have shape \(\.\.\., 6\) to match h \(\.\.\., 6, 4\)"),
     ({"h": np.ones((4, 4))}, "more rows"),
     ({"z": np.full(6, np.nan)}, "z must contain only finite values"),
 ])

@@ -22,7 +22,7 @@ from .base import (
     STATUS_OK,
     STATUS_UNAVAILABLE,
     AlgorithmOutput,
-    EpochData,
+    Measurements,
 )
 
 #: ``isolate(h (B, N, n), y (B, N), w (B, N), p_fa, rng) -> (isolated (B, N) bool,
@@ -30,7 +30,7 @@ from .base import (
 Isolator = Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
-def run_multi_fault(data: EpochData, isolate: Isolator, score_name: str,
+def run_multi_fault(data: Measurements, isolate: Isolator, score_name: str,
                     threshold_name: str) -> AlgorithmOutput:
     """Run ``isolate`` on every epoch of ``data`` and package the common output.
 
@@ -87,9 +87,14 @@ def run_multi_fault(data: EpochData, isolate: Isolator, score_name: str,
     )
 
 
-def groups_option(options: dict, key: str):
-    """The number-of-groups option: 0 means the paper's N^2."""
-    from .._validate import check_int
+def groups_option(name: str):
+    """The number-of-groups option ``name`` (0: the paper's N^2)."""
+    from ..schema import option
 
-    n = check_int(key, options.get(key, 0), 0, 100_000)
-    return None if n == 0 else n
+    return option(name, int, 0, "number of satellite groups (0 = the paper's N^2)", lo=0,
+                  hi=100_000)
+
+
+def as_groups(value: int) -> int | None:
+    """The groups option's value as ``select_groups`` takes it (None: the paper's N^2)."""
+    return None if value == 0 else value

@@ -1,105 +1,33 @@
 """The common interface every RAIM algorithm implements, and the registry.
 
 An algorithm is a module that builds an :class:`AlgorithmSpec` and calls :func:`register`.
-The scenario engine hands it one :class:`EpochData` (every epoch of a scenario at once) and
-its options, and gets back one :class:`AlgorithmOutput`. The engine, the CLI and the
-dashboard find algorithms only through this registry.
+The pipeline hands it one :class:`~raimcore.measure.Measurements` (every epoch of a
+scenario at once: what a receiver has, never the truth) and its options (validated against
+the option keys it declares, defaults filled in), and gets back one
+:class:`AlgorithmOutput`. The engine, the CLI and the dashboard find algorithms only through
+this registry.
 
 Shapes follow the package rule: batch axes first, components last. ``E`` epochs, ``S``
-satellites of the scenario (not all visible at every epoch: see ``EpochData.used``).
+satellites of the scenario (not all visible at every epoch: see ``Measurements.used``).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+from ..measure.data import Measurements
+from ..schema import Key, SchemaError, did_you_mean
 
 # Per-epoch status codes, shared by every algorithm (column ``status`` of the result table).
 STATUS_OK = "ok"  # detection and isolation available
 STATUS_NO_ISOLATION = "detect-only"  # m == n + 1: can detect, cannot isolate
 STATUS_UNAVAILABLE = "unavailable"  # too few measurements or singular geometry
 STATUS_NOT_ARMED = "not-armed"  # a filter still converging (burn-in), test not armed yet
-
-
-@dataclass(frozen=True)
-class EpochData:
-    """Everything an algorithm may use about a scenario, all epochs at once.
-
-    Attributes
-    ----------
-    t_s : (E,) epoch times, seconds from the scenario start.
-    sat_names : (S,) satellite names, e.g. ``"G10"``, ``"C21"``.
-    sys_idx : (S,) int system index of each satellite into ``systems``.
-    systems : names of the systems, e.g. ``("GPS", "BDS")``.
-    pos_sv_ecef_m : (E, S, 3) satellite positions (ECEF, m).
-    pr_m : (E, S) pseudoranges (m), NaN where not tracked.
-    used : (E, S) bool, tracked and above the elevation mask.
-    az_rad, el_rad : (E, S) azimuth and elevation from the true receiver position.
-    sigma_m : (E, S) 1-sigma of each pseudorange as the algorithms should assume (m).
-    noise : the noise model that generated the pseudoranges (has ``logpdf``), see
-        :mod:`raimcore.measure.noise`.
-    pos_rx_true_ecef_m : (E, 3) true receiver position (m), for errors only.
-    vel_rx_true_ecef_mps : (E, 3) true receiver velocity (m/s).
-    fault_bias_m : (E, S) injected fault biases (truth, m); 0 where no fault.
-    baro_alt_m : (E,) barometric altitude measurement (m, ellipsoidal) or None when off.
-    sigma_baro_m : its 1-sigma (m) or None.
-    p_fa, p_md : false-alarm and missed-detection probabilities.
-    seed : the scenario seed; algorithms that need randomness use :meth:`rng`.
-    notes : remarks about the data for the user (e.g. satellites of a recording left out).
-    """
-
-    t_s: np.ndarray
-    sat_names: tuple[str, ...]
-    sys_idx: np.ndarray
-    systems: tuple[str, ...]
-    pos_sv_ecef_m: np.ndarray
-    pr_m: np.ndarray
-    used: np.ndarray
-    az_rad: np.ndarray
-    el_rad: np.ndarray
-    sigma_m: np.ndarray
-    noise: Any
-    pos_rx_true_ecef_m: np.ndarray
-    vel_rx_true_ecef_mps: np.ndarray
-    fault_bias_m: np.ndarray
-    p_fa: float
-    p_md: float
-    seed: int
-    baro_alt_m: np.ndarray | None = None
-    sigma_baro_m: float | None = None
-    hal_m: float = 40.0
-    val_m: float = 50.0
-    notes: tuple[str, ...] = ()
-
-    @property
-    def n_epochs(self) -> int:
-        return self.t_s.shape[0]
-
-    @property
-    def n_sats(self) -> int:
-        return len(self.sat_names)
-
-    def take_sats(self, cols) -> EpochData:
-        """The same epochs restricted to the satellites at indices ``cols``."""
-        cols = np.asarray(cols, dtype=int)
-        changes = {"sat_names": tuple(self.sat_names[c] for c in cols),
-                   "sys_idx": self.sys_idx[cols]}
-        for name in SAT_AXIS_FIELDS:
-            changes[name] = getattr(self, name)[:, cols]
-        return dataclasses.replace(self, **changes)
-
-    def rng(self, stream: int = 0) -> np.random.Generator:
-        """A generator for the algorithm's own randomness, independent of the noise draw."""
-        return np.random.default_rng(np.random.SeedSequence([int(self.seed), 1000 + stream]))
-
-
-#: EpochData fields of shape (E, S, ...): a new per-satellite field must be listed here.
-SAT_AXIS_FIELDS = ("pos_sv_ecef_m", "pr_m", "used", "az_rad", "el_rad", "sigma_m",
-                   "fault_bias_m")
 
 
 @dataclass(frozen=True)
@@ -176,8 +104,11 @@ class AlgorithmSpec:
     label : human name for menus.
     summary : one paragraph, plain words, for the dashboard's teaching panel.
     equations : the key equations (Markdown with ``$...$`` math) for the teaching panel.
-    run : ``run(data: EpochData, options: dict) -> AlgorithmOutput``.
-    options : option names and defaults this algorithm accepts (scenario keys).
+    run : ``run(data: Measurements, options: dict) -> AlgorithmOutput``; ``options`` holds
+        every declared option, validated, defaults filled in.
+    options : the option keys (:class:`~raimcore.schema.Key`, made with
+        :func:`raimcore.schema.option`) this algorithm accepts: declared once, read by the
+        scenario check, the CLI, the dashboard and the docs.
     reference : the paper it implements.
     """
 
@@ -185,27 +116,81 @@ class AlgorithmSpec:
     label: str
     summary: str
     equations: str
-    run: Callable[[EpochData, dict[str, Any]], AlgorithmOutput]
-    options: Mapping[str, Any] = field(default_factory=dict)
+    run: Callable[[Measurements, dict[str, Any]], AlgorithmOutput]
+    options: Sequence[Key] = ()
     reference: str = ""
+
+    def __post_init__(self):
+        keys = tuple(self.options)
+        if any(not isinstance(k, Key) for k in keys):
+            raise TypeError(f"algorithm {self.name!r}: options must be schema Keys "
+                            "(raimcore.schema.option)")
+        object.__setattr__(self, "options", keys)
+
+    @property
+    def option_keys(self) -> dict[str, Key]:
+        """The option keys by name."""
+        return {k.name: k for k in self.options}
+
+    @property
+    def defaults(self) -> dict[str, Any]:
+        """Every option's default."""
+        return {k.name: k.default for k in self.options}
+
+    def resolve_options(self, given: Mapping[str, Any]) -> dict[str, Any]:
+        """Defaults overridden by ``given``, each value checked by its key.
+
+        Raises
+        ------
+        SchemaError
+            An option this algorithm does not take (with a "did you mean"), or a value its
+            key refuses.
+        """
+        keys = self.option_keys
+        out = self.defaults
+        for name, value in given.items():
+            if name not in keys:
+                allowed = ", ".join(keys) or "none"
+                raise SchemaError(f"option {name!r} does not belong to algorithm "
+                                  f"{self.name!r}{did_you_mean(name, keys)}; its options: "
+                                  f"{allowed}")
+            out[name] = keys[name].coerce(value)
+        return out
 
 
 _REGISTRY: dict[str, AlgorithmSpec] = {}
 
 
 def register(spec: AlgorithmSpec) -> AlgorithmSpec:
-    """Add ``spec`` to the registry (re-registering the same name replaces it)."""
+    """Add ``spec`` to the registry (re-registering the same name replaces it).
+
+    An option name shared by several algorithms (the process model of ``pf-llr`` and
+    ``ekf``) must be declared identically, so that one ``--set`` means one thing.
+    """
+    for other in _REGISTRY.values():
+        if other.name == spec.name:
+            continue
+        for name, k in spec.option_keys.items():
+            o = other.option_keys.get(name)
+            if o is not None and o != k:
+                raise ValueError(f"algorithm {spec.name!r}: option {name!r} differs from "
+                                 f"the one of {other.name!r}; share one declaration")
     _REGISTRY[spec.name] = spec
     return spec
 
 
 def get(name: str) -> AlgorithmSpec:
-    """Return the algorithm called ``name`` or raise ``ValueError`` listing the choices."""
-    from . import _load_all
+    """Return the algorithm called ``name`` or raise ``ValueError`` listing the choices
+    (and why a module that failed to load is missing)."""
+    from . import _load_all, failed
 
     _load_all()
     if name not in _REGISTRY:
-        raise ValueError(f"algorithm must be one of {', '.join(sorted(_REGISTRY))}; got {name!r}")
+        why = failed()
+        extra = (f" ({name!r} failed to load: {why[name]})" if name in why else
+                 did_you_mean(str(name), _REGISTRY))
+        raise SchemaError(f"algorithm must be one of {', '.join(_REGISTRY)}; got "
+                          f"{name!r}{extra}")
     return _REGISTRY[name]
 
 

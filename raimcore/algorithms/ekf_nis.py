@@ -20,11 +20,11 @@ from .base import (
     STATUS_UNAVAILABLE,
     AlgorithmOutput,
     AlgorithmSpec,
-    EpochData,
+    Measurements,
     register,
 )
 from .ekf import run_ekf
-from .pf_llr import noise_scale, process_model
+from .pf_llr import PROCESS_OPTIONS, noise_scale, process_model
 
 SUMMARY = (
     "A Kalman filter follows the receiver position and clock, assuming Gaussian noise. "
@@ -46,7 +46,7 @@ EQUATIONS = r"""
 """
 
 
-def run(data: EpochData, options: dict) -> AlgorithmOutput:
+def run(data: Measurements, options: dict) -> AlgorithmOutput:
     """Run the plain and the protected EKF on every epoch (options: the process model,
     shared with ``pf-llr``: ``model``, ``q_pos_mps``, ``q_vel_mps2``, ``q_clk_mps``)."""
     model = process_model(options, len(data.systems))
@@ -85,7 +85,7 @@ SPEC = register(AlgorithmSpec(
     summary=SUMMARY,
     equations=EQUATIONS,
     run=run,
-    options={"model": "static", "q_pos_mps": 0.1, "q_vel_mps2": 0.5, "q_clk_mps": 0.1},
+    options=PROCESS_OPTIONS,
     reference="Baseline of seed 002: extended Kalman filter with the particle filters' state "
               "model and an innovation chi-square RAIM test.",
 ))

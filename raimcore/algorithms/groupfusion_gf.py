@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from .._validate import check_choice, check_range
-from ._groupfusion_common import groups_option, run_multi_fault
-from .base import AlgorithmSpec, EpochData, register
+from ..schema import option
+from ._groupfusion_common import as_groups, groups_option, run_multi_fault
+from .base import AlgorithmSpec, Measurements, register
 from .groupfusion import WEIGHTS, gf_isolate, select_groups
 
 SUMMARY = (
@@ -30,10 +30,10 @@ EQUATIONS = r"""
 """
 
 
-def run(data: EpochData, options: dict):
-    n_groups = groups_option(options, "gf_groups")
-    margin = check_range("gf_margin", options.get("gf_margin", 0.1), 0.0, 1.0)
-    weights = check_choice("gf_weights", options.get("gf_weights", "pdop"), WEIGHTS)
+def run(data: Measurements, options: dict):
+    n_groups = as_groups(options["gf_groups"])
+    margin = options["gf_margin"]
+    weights = options["gf_weights"]
 
     def isolate(h, y, w, p_fa, rng):
         g = select_groups(y.shape[-1], h.shape[-1] + 1, n_groups)
@@ -49,7 +49,13 @@ SPEC = register(AlgorithmSpec(
     summary=SUMMARY,
     equations=EQUATIONS,
     run=run,
-    options={"gf_groups": 0, "gf_margin": 0.1, "gf_weights": "pdop"},
+    options=(
+        groups_option("gf_groups"),
+        option("gf_margin", float, 0.1, "isolation margin M of seed 004 eq. 3: isolated "
+               "when the fused score exceeds the mean score + M", lo=0.0, hi=1.0),
+        option("gf_weights", "choice", "pdop", "group weights of the evidence fusion",
+               choices=WEIGHTS),
+    ),
     reference="Seed 004: grouped fault detection with evidence fusion for multi-satellite "
               "fault isolation in GPS/BDS (spec ALGORITHMS.md section 4).",
 ))

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from .._validate import check_choice, check_range
-from ._groupfusion_common import groups_option, run_multi_fault
-from .base import AlgorithmSpec, EpochData, register
+from ..schema import option
+from ._groupfusion_common import as_groups, groups_option, run_multi_fault
+from .base import AlgorithmSpec, Measurements, register
 from .groupfusion import qv_isolate, select_groups
 
 SUMMARY = (
@@ -21,10 +21,10 @@ EQUATIONS = r"""
 """
 
 
-def run(data: EpochData, options: dict):
-    n_groups = groups_option(options, "qv_groups")
-    margin = check_range("qv_margin", options.get("qv_margin", 0.1), 0.0, 1.0)
-    norm = check_choice("qv_norm", options.get("qv_norm", "share"), ("share", "max"))
+def run(data: Measurements, options: dict):
+    n_groups = as_groups(options["qv_groups"])
+    margin = options["qv_margin"]
+    norm = options["qv_norm"]
 
     def isolate(h, y, w, p_fa, rng):
         g = select_groups(y.shape[-1], h.shape[-1] + 1, n_groups)
@@ -39,7 +39,14 @@ SPEC = register(AlgorithmSpec(
     summary=SUMMARY,
     equations=EQUATIONS,
     run=run,
-    options={"qv_groups": 0, "qv_margin": 0.1, "qv_norm": "share"},
+    options=(
+        groups_option("qv_groups"),
+        option("qv_margin", float, 0.1, "isolation margin M: isolated when the "
+               "confidence index exceeds the mean index + M", lo=0.0,
+               hi=1.0),
+        option("qv_norm", "choice", "share", "normalisation of the confidence index",
+               choices=("share", "max")),
+    ),
     reference="Patino-Studencka et al. (2010), confidence index RAIM, as cited by seed 004 "
               "(its ref. [6]); reading in ALGORITHMS.md section 4.",
 ))

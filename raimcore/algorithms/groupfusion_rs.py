@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import check_int
+from ..schema import option
 from ._groupfusion_common import run_multi_fault
-from .base import AlgorithmSpec, EpochData, register
+from .base import AlgorithmSpec, Measurements, register
 from .groupfusion import rs_isolate
 
 SUMMARY = (
@@ -23,8 +23,8 @@ EQUATIONS = r"""
 """
 
 
-def run(data: EpochData, options: dict):
-    draws = check_int("rs_draws", options.get("rs_draws", 50), 1, 10_000)
+def run(data: Measurements, options: dict):
+    draws = options["rs_draws"]
 
     def isolate(h, y, w, p_fa, rng):
         iso = rs_isolate(h, y, p_fa, rng, weights_lsq=w, n_draws=draws)
@@ -39,7 +39,7 @@ SPEC = register(AlgorithmSpec(
     summary=SUMMARY,
     equations=EQUATIONS,
     run=run,
-    options={"rs_draws": 50},
+    options=(option("rs_draws", int, 50, "random subsets drawn per epoch", lo=1, hi=10_000),),
     reference="Chen & Zhang (2011), random search multi-fault RAIM, as cited by seed 004 "
               "(its ref. [5]); reading in ALGORITHMS.md section 4.",
 ))

@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import check_choice
 from ..geometry import ecef_to_geodetic, enu_to_ecef
 from ..lsq import wls
+from ..schema import option
 from . import mss as kernel
-from .base import AlgorithmOutput, AlgorithmSpec, EpochData, register
+from .base import AlgorithmOutput, AlgorithmSpec, Measurements, register
 
 IDENT_RULES = ("unique", "rank")
 
@@ -55,7 +55,15 @@ EQUATIONS = r"""
 """
 
 
-def run(data: EpochData, options: dict) -> AlgorithmOutput:
+#: Options (scenario keys) of solution separation.
+OPTIONS = (
+    option("mss_ident_rule", "choice", "unique", "identification rule: 'unique' (the "
+           "paper's: exactly one sub-solution passes) or 'ranking' (the smallest normalised "
+           "sub-sub statistic)", choices=IDENT_RULES),
+)
+
+
+def run(data: Measurements, options: dict) -> AlgorithmOutput:
     """Run MSS (with the scenario's baro setting), MSS without baro and classic RAIM.
 
     Options
@@ -65,7 +73,7 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
         pass). After a multiple-fault verdict the same rule applies to satellite pairs
         (second level, redundancy >= 3) and both satellites of the pair are excluded.
     """
-    rule = check_choice("mss_ident_rule", options.get("mss_ident_rule", "unique"), IDENT_RULES)
+    rule = options["mss_ident_rule"]
     n_ep, n_sat = data.pr_m.shape
     w_sat = np.where(data.used, 1.0 / data.sigma_m**2, 0.0)
     lin = wls(data.pos_sv_ecef_m, data.pr_m, w_sat, data.sys_idx, len(data.systems))
@@ -204,7 +212,7 @@ SPEC = register(AlgorithmSpec(
     summary=SUMMARY,
     equations=EQUATIONS,
     run=run,
-    options={"mss_ident_rule": "unique"},
+    options=OPTIONS,
     reference="Chen W., Yang Z., Gu S., Wang Y., barometric-altimeter-aided autonomous "
               "integrity monitoring by multiple solution separation (seed 001); classic PLs: "
               "Brown (1992) Navigation 39(3); Walter & Enge (1995) ION GPS.",

@@ -9,15 +9,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import check_int
 from ..lsq import wls
+from ..schema import option
 from .base import (
     STATUS_NO_ISOLATION,
     STATUS_OK,
     STATUS_UNAVAILABLE,
     AlgorithmOutput,
     AlgorithmSpec,
-    EpochData,
+    Measurements,
     register,
 )
 from .mss import classic_raim
@@ -44,10 +44,17 @@ EQUATIONS = r"""
 """
 
 
-def run(data: EpochData, options: dict) -> AlgorithmOutput:
+#: Options (scenario keys) of the parity algorithm.
+OPTIONS = (
+    option("max_exclusions", int, 1, "satellites that may be excluded one after another "
+           "(greedy) at one epoch; 0 = detect only", lo=0, hi=10),
+)
+
+
+def run(data: Measurements, options: dict) -> AlgorithmOutput:
     """Run parity FDE on every epoch; ``options["max_exclusions"]`` (default 1) sets how
     many satellites may be excluded one after another (greedy) at one epoch."""
-    max_excl = check_int("max_exclusions", options.get("max_exclusions", 1), 0, 10)
+    max_excl = options["max_exclusions"]
     w = np.where(data.used, 1.0 / data.sigma_m**2, 0.0)
     n_sys = len(data.systems)
     before = wls(data.pos_sv_ecef_m, data.pr_m, w, data.sys_idx, n_sys)
@@ -99,7 +106,7 @@ SPEC = register(AlgorithmSpec(
     summary=SUMMARY,
     equations=EQUATIONS,
     run=run,
-    options={"max_exclusions": 1},
+    options=OPTIONS,
     reference="Liao X., Huang S. (1996), parity vector method for GPS fault detection and "
               "isolation, J. UEST China (seed 000).",
 ))

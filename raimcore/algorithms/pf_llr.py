@@ -14,16 +14,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import check_choice, check_int, check_positive, check_probability
-from ..geometry import ecef_to_enu
 from ..measure.noise import scaled
+from ..schema import option
 from .base import (
     STATUS_NOT_ARMED,
     STATUS_OK,
     STATUS_UNAVAILABLE,
     AlgorithmOutput,
     AlgorithmSpec,
-    EpochData,
+    Measurements,
     register,
 )
 from .pf import (
@@ -73,18 +72,44 @@ CLOUD_PARTICLES = 200
 CLOUD_BUDGET = 2_000_000
 
 
+#: Process-model options, shared with ``ekf`` (one declaration, one meaning).
+PROCESS_OPTIONS = (
+    option("model", "choice", "static", "process model of the filters' state",
+           choices=PROCESS_MODELS),
+    option("q_pos_mps", float, 0.1, "position process noise (static model)", unit="m/s",
+           lo=0.0, hi=1.0e4),
+    option("q_vel_mps2", float, 0.5, "velocity process noise (constant-velocity model)",
+           unit="m/s^2", lo=0.0, hi=1.0e4),
+    option("q_clk_mps", float, 0.1, "receiver clock process noise", unit="m/s", lo=0.0,
+           hi=1.0e6),
+)
+
+#: Options (scenario keys) of PF-LLR.
+OPTIONS = (
+    option("n_particles", int, 100, "particles per filter (N)", lo=2, hi=1_000_000),
+    option("window", int, 30, "LLR window (W epochs)", lo=1, hi=100_000),
+    option("burn_in", int, 30, "epochs after the first fix before LLRs are accumulated",
+           lo=0, hi=100_000),
+    option("tau", "float_or_auto", "auto", "threshold of the windowed LLR; \"auto\" = "
+           "calibrated by fault-free Monte Carlo runs"),
+    option("p_fa_window", float, 1e-3, "calibration target: false alarms per window",
+           lo=0.0, hi=1.0, lo_open=True, hi_open=True),
+    option("tau_cache", "choice", "memory", "where calibrated thresholds are kept",
+           choices=("memory", "disk", "off")),
+    option("tau_sets", "choice", "first", "calibrate once for the satellites in view at "
+           "the first armed epoch (first), or once per satellite set in view (each)",
+           choices=("first", "each")),
+    *PROCESS_OPTIONS,
+)
+
+
 def process_model(options: dict, n_clk: int) -> ProcessModel:
-    """The :class:`ProcessModel` named by the scenario options (shared with ``ekf``)."""
-    return ProcessModel(
-        kind=check_choice("model", options.get("model", "static"), PROCESS_MODELS),
-        n_clk=n_clk,
-        q_pos_mps=check_positive("q_pos_mps", options.get("q_pos_mps", 0.1), allow_zero=True),
-        q_vel_mps2=check_positive("q_vel_mps2", options.get("q_vel_mps2", 0.5),
-                                  allow_zero=True),
-        q_clk_mps=check_positive("q_clk_mps", options.get("q_clk_mps", 0.1), allow_zero=True))
+    """The :class:`ProcessModel` named by the (resolved) options (shared with ``ekf``)."""
+    return ProcessModel(kind=options["model"], n_clk=n_clk, q_pos_mps=options["q_pos_mps"],
+                        q_vel_mps2=options["q_vel_mps2"], q_clk_mps=options["q_clk_mps"])
 
 
-def noise_scale(data: EpochData):
+def noise_scale(data: Measurements):
     """Per-satellite factor ``data.sigma_m / noise.sigma_m`` (E, S): the elevation model of
     a recording, so that the filters weigh satellites as the snapshot algorithms do; None
     when it is 1 everywhere (simulated scenarios)."""
@@ -94,7 +119,7 @@ def noise_scale(data: EpochData):
     return None if np.all(k == 1.0) else k
 
 
-def _threshold(data: EpochData, model: ProcessModel, n: int, window: int, burn_in: int,
+def _threshold(data: Measurements, model: ProcessModel, n: int, window: int, burn_in: int,
                p_fa: float, cache: str, ref: int, scale=None) -> float:
     """Calibrated tau for the satellites and geometry of epoch ``ref`` (see module doc)."""
     u = data.used[ref]
@@ -119,22 +144,7 @@ def _threshold(data: EpochData, model: ProcessModel, n: int, window: int, burn_i
     return cached_tau(key, compute, cache=cache)
 
 
-def _parse_tau(value) -> float | None:
-    """``tau`` option: ``"auto"`` / ``None`` (calibrated) or a finite number."""
-    if value is None or (isinstance(value, str) and value.strip().lower() in
-                         ("auto", "none", "")):
-        return None
-    try:
-        tau = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"tau must be 'auto' (calibrated) or a number, got {value!r}") \
-            from None
-    if not np.isfinite(tau):
-        raise ValueError(f"tau must be 'auto' (calibrated) or a finite number, got {value!r}")
-    return tau  # any real number: LLRs may be negative
-
-
-def run(data: EpochData, options: dict) -> AlgorithmOutput:
+def run(data: Measurements, options: dict) -> AlgorithmOutput:
     """Run the bank of particle filters and the windowed LLR test on every epoch.
 
     Options: ``n_particles`` (N), ``window`` (W epochs), ``burn_in`` (epochs after the
@@ -146,14 +156,9 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     view, each armed epoch tested against its own set's tau), ``model``, ``q_pos_mps``,
     ``q_vel_mps2``, ``q_clk_mps`` (process model, :class:`raimcore.algorithms.pf.ProcessModel`).
     """
-    n = check_int("n_particles", options.get("n_particles", 100), 2, 1_000_000)
-    window = check_int("window", options.get("window", 30), 1, 100_000)
-    burn_in = check_int("burn_in", options.get("burn_in", 30), 0, 100_000)
-    p_fa = check_probability("p_fa_window", options.get("p_fa_window", 1e-3))
-    cache = check_choice("tau_cache", options.get("tau_cache", "memory"),
-                         ("memory", "disk", "off"))
-    tau_opt = _parse_tau(options.get("tau", "auto"))
-    tau_sets = check_choice("tau_sets", options.get("tau_sets", "first"), ("first", "each"))
+    n, window, burn_in = options["n_particles"], options["window"], options["burn_in"]
+    p_fa, cache, tau_sets = options["p_fa_window"], options["tau_cache"], options["tau_sets"]
+    tau_opt = None if options["tau"] == "auto" else float(options["tau"])
     model = process_model(options, len(data.systems))
     e_n, s_n = data.pr_m.shape
     scale = noise_scale(data)
@@ -165,10 +170,8 @@ def run(data: EpochData, options: dict) -> AlgorithmOutput:
     armed = bank.armed
     extras = {}
     if bank.cloud is not None:
-        # The main filter's cloud as East/North/Up offsets from the true position (m).
-        rx = np.asarray(data.pos_rx_true_ecef_m, dtype=float)[:, None, :]
-        extras = {"particles_enu_m": ecef_to_enu(bank.cloud[..., :3], rx),
-                  "particle_weight": bank.cloud_weight}
+        # The main filter's cloud (ECEF, m); displays show it around the true position.
+        extras = {"particles_ecef_m": bank.cloud[..., :3], "particle_weight": bank.cloud_weight}
     tau = np.full(e_n, np.nan)
     if tau_opt is not None:
         tau[:] = tau_opt
@@ -212,10 +215,7 @@ SPEC = register(AlgorithmSpec(
     summary=SUMMARY,
     equations=EQUATIONS,
     run=run,
-    options={"n_particles": 100, "window": 30, "burn_in": 30, "tau": "auto",
-             "p_fa_window": 1e-3, "tau_cache": "memory", "tau_sets": "first",
-             "model": "static",
-             "q_pos_mps": 0.1, "q_vel_mps2": 0.5, "q_clk_mps": 0.1},
+    options=OPTIONS,
     reference="Particle filter and log-likelihood ratio RAIM (seed 002): SIR particle "
               "filter bank, windowed cumulative LLR, N = 100, W = 30.",
 ))

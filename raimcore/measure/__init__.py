@@ -1,0 +1,140 @@
+"""Stage 2 of the pipeline, measure: from a :class:`~raimcore.sky.Sky` to what a receiver
+has (:class:`Measurements`) and what only the study knows (:class:`Truth`).
+
+One implementation for both sky sources, in this order: elevation mask, ``restrict``
+windows, the pseudoranges (a simulated sky: geometric range + receiver clock + noise
+(:mod:`raimcore.measure.noise`); a recording: its real corrected pseudoranges), the
+recording's measured-error note (before any fault), the faults
+(:mod:`raimcore.measure.faults`), the barometric altimeter.
+
+Random streams (noise, receiver clock, baro) are spawned from ``s.seed`` with
+``SeedSequence``, so each is reproducible on its own.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..lsq import clock_columns
+from ..sky.spp import elevation_sigma
+from .data import Measurements, Truth
+from .errors import error_statistics
+from .faults import Fault, fault_biases
+from .noise import make_noise
+
+__all__ = ["measure", "Measurements", "Truth", "apply_restrict", "fault_notes",
+           "error_statistics"]
+
+#: Keys that shape a simulated sky only: on a recording, a value other than the default
+#: has no effect and is said so.
+SIMULATION_ONLY_KEYS = ("constellation", "rename", "trajectory", "lat_deg", "lon_deg",
+                        "height_m", "speed_mps", "heading_deg", "climb_mps",
+                        "cruise_speed_mps", "cruise_alt_m", "climb_s", "turn_start_s",
+                        "turn_rate_dps", "turn_deg", "clock_drift_mps")
+
+
+def measure(sky, s) -> tuple[Measurements, Truth]:
+    """The measurements and the truth of scenario ``s`` on ``sky``."""
+    t, names = sky.t_s, sky.sat_names
+    used = sky.trackable & (sky.el_rad >= math.radians(s.mask_deg))
+    apply_restrict(used, t, names, s.restrict)
+    bias = fault_biases(s.faults, t, names)
+    noise = make_noise(s.noise, s.sigma_m, mixture_eps=s.mixture_eps,
+                       mixture_scale=s.mixture_scale, student_nu=s.student_nu,
+                       corr_s=s.noise_corr_s)
+    noise_ss, clock_ss, baro_ss = np.random.SeedSequence(int(s.seed)).spawn(3)
+    notes = list(sky.notes)
+    if sky.pr_m is None:
+        eps = noise.sample(np.random.default_rng(noise_ss), sky.range_m.shape, t_s=t)
+        cc = clock_columns(sky.sys_idx, len(sky.systems))
+        clk0 = np.random.default_rng(clock_ss).uniform(-3e5, 3e5, len(sky.systems))
+        clock = clk0[None, :] + s.clock_drift_mps * t[:, None]
+        clean = sky.range_m + clock @ cc.T + eps
+        sigma = np.full(clean.shape, s.sigma_m)
+    else:
+        clean = sky.pr_m
+        sigma = elevation_sigma(sky.el_rad, s.sigma_m)  # the assumed model of the real errors
+        notes += _ignored_on_recording(s)
+    baro_alt = None
+    if s.baro:
+        baro_alt = sky.h_rx_m + s.sigma_baro_m * np.random.default_rng(baro_ss) \
+            .standard_normal(len(t))
+    pr = np.where(used, clean + bias, np.nan)
+    meas = Measurements(
+        t_s=t, sat_names=tuple(names), sys_idx=sky.sys_idx, systems=tuple(sky.systems),
+        pos_sv_ecef_m=sky.pos_sv_ecef_m, pr_m=pr, used=used, az_rad=sky.az_rad,
+        el_rad=sky.el_rad, sigma_m=sigma, noise=noise, p_fa=s.p_fa, p_md=s.p_md,
+        hal_m=s.hal_m, val_m=s.val_m, seed=int(s.seed), baro_alt_m=baro_alt,
+        sigma_baro_m=s.sigma_baro_m if s.baro else None)
+    truth = Truth(pos_rx_ecef_m=sky.pos_rx_ecef_m, vel_rx_ecef_mps=sky.vel_rx_ecef_mps,
+                  fault_bias_m=bias, used=used)
+    if sky.pr_m is not None:  # a recording: measure its errors before any fault is added
+        clean_meas = Measurements(**{**meas.__dict__, "pr_m": np.where(used, clean, np.nan)})
+        note = _error_note(clean_meas, truth, s)
+        if note:
+            notes.append(note)
+    notes += fault_notes(s.faults, truth, names, t)
+    return Measurements(**{**meas.__dict__, "notes": tuple(notes)}), truth
+
+
+def apply_restrict(used, t, sat_names, restrict) -> None:
+    """Clear ``used`` (E, S) in place outside each restriction's satellites and window."""
+    for r in restrict:
+        unknown = [x for x in r.sats if x not in sat_names]
+        if unknown:
+            raise ValueError(f"restrict: unknown satellite(s) {', '.join(unknown)}; this "
+                             f"scenario has {', '.join(sat_names)}")
+        window = (t >= r.t0_s) & (t < r.t1_s)
+        keep = np.isin(np.array(sat_names), list(r.sats))
+        used[window] &= keep[None, :]
+
+
+def fault_notes(faults: tuple[Fault, ...], truth: Truth, sat_names, t_s) -> list[str]:
+    """A warning for each fault that never acts on a used measurement, saying why."""
+    out = []
+    index = {n: k for k, n in enumerate(sat_names)}
+    t = np.asarray(t_s, dtype=float)
+    t_end = float(t[-1]) if t.size else 0.0
+    for f in faults:
+        k = index[f.sat]
+        acts = (f.bias_at(t) != 0) & truth.used[:, k]
+        if acts.any():
+            continue
+        window = (t >= f.t0_s) & (t < f.t1_s)
+        if not window.any():
+            why = (f"its window [{f.t0_s:g}, {f.t1_s:g}) s lies outside the run "
+                   f"[0, {t_end:g}] s")
+        elif not truth.used[:, k].any():
+            why = f"{f.sat} is never used (below the mask, unhealthy or restricted)"
+        elif not truth.used[window, k].any():
+            why = f"{f.sat} is not used while the fault is on"
+        else:
+            why = "its bias is 0 at every used epoch"
+        out.append(f"warning: fault {f.sat} {f.kind} from t = {f.t0_s:g} s never acts: {why}")
+    return out
+
+
+def _ignored_on_recording(s) -> list[str]:
+    defaults = {f.name: f.default for f in dataclasses.fields(s)}
+    set_ = [k for k in SIMULATION_ONLY_KEYS if getattr(s, k) != defaults[k]]
+    if not set_:
+        return []
+    return [f"{', '.join(set_)} shape simulated skies only; on a recording they have no "
+            "effect"]
+
+
+def _error_note(meas: Measurements, truth: Truth, s) -> str | None:
+    try:
+        fit = error_statistics(meas, truth)
+    except ValueError:  # too few satellites for an estimate: nothing to say
+        return None
+    note = (f"measured pseudorange errors against the station position: sigma "
+            f"{fit.sigma_m:.2f} m at the zenith (robust; scenario sigma_m {s.sigma_m:g}), "
+            f"correlation {fit.rho:.2f} over {fit.dt_s:g} s")
+    if 0 < fit.corr_s < math.inf:
+        note += (f" (Gauss-Markov time {fit.corr_s:.0f} s; scenario noise_corr_s "
+                 f"{s.noise_corr_s:g}: PF-LLR calibrates its threshold on these two keys)")
+    return note

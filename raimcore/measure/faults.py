@@ -7,11 +7,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import check_choice
+from ..schema import SchemaError, coerce_float, coerce_str
 
 __all__ = ["Fault", "fault_biases", "parse_fault"]
 
 FAULT_KINDS = ("step", "ramp")
+#: Largest step bias (m) and ramp rate (m/s) a fault may have: far beyond any real
+#: satellite fault (a 1e308 m bias would overflow the statistics to inf / NaN).
+MAX_BIAS_M = 1.0e7
+MAX_RATE_MPS = 1.0e5
+#: The keys of a fault in a scenario file.
+FAULT_FIELDS = ("sat", "kind", "t0_s", "t1_s", "bias_m", "rate_mps")
+
+
+def _is_inf(x) -> bool:
+    return isinstance(x, float | int) and not isinstance(x, bool) and x == math.inf
 
 
 @dataclass(frozen=True)
@@ -31,17 +41,23 @@ class Fault:
     rate_mps: float = 0.0
 
     def __post_init__(self):
-        check_choice("fault kind", self.kind, FAULT_KINDS)
-        if not isinstance(self.sat, str) or not self.sat:
-            raise ValueError(f"fault sat must be a satellite name such as 'G10', got {self.sat!r}")
-        for name in ("t0_s", "t1_s", "bias_m", "rate_mps"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or math.isnan(v):
-                raise ValueError(f"fault {name} must be a number, got {v!r}")
+        if not isinstance(self.sat, str) or not self.sat.strip():
+            raise SchemaError(f"fault sat must be a satellite name such as 'G10', got "
+                              f"{self.sat!r}")
+        coerce_str("fault kind", self.kind, FAULT_KINDS)
+        set_ = object.__setattr__
+        set_(self, "t0_s", coerce_float(f"fault {self.sat} t0_s", self.t0_s, unit="s"))
+        t1 = self.t1_s
+        if not (_is_inf(t1)):
+            t1 = coerce_float(f"fault {self.sat} t1_s", t1, unit="s")
+        set_(self, "t1_s", math.inf if _is_inf(t1) else t1)
+        set_(self, "bias_m", coerce_float(f"fault {self.sat} bias_m", self.bias_m,
+                                          -MAX_BIAS_M, MAX_BIAS_M, unit="m"))
+        set_(self, "rate_mps", coerce_float(f"fault {self.sat} rate_mps", self.rate_mps,
+                                            -MAX_RATE_MPS, MAX_RATE_MPS, unit="m/s"))
         if self.t1_s <= self.t0_s:
-            raise ValueError(f"fault t1_s must be after t0_s ({self.t0_s}), got {self.t1_s}")
-        if math.isinf(self.bias_m) or math.isinf(self.rate_mps) or math.isinf(self.t0_s):
-            raise ValueError("fault bias_m, rate_mps and t0_s must be finite")
+            raise SchemaError(f"fault {self.sat} t1_s must be after t0_s ({self.t0_s:g} s), "
+                              f"got {self.t1_s:g}")
 
     def bias_at(self, t_s) -> np.ndarray:
         """Bias (m) of this fault at times ``t_s`` (array)."""
@@ -50,6 +66,28 @@ class Fault:
         if self.kind == "step":
             return np.where(active, self.bias_m, 0.0)
         return np.where(active, self.rate_mps * (t - self.t0_s), 0.0)
+
+    @classmethod
+    def from_dict(cls, d, where: str = "faults") -> Fault:
+        """A fault from a scenario file's table (``sat``, ``kind``, ``t0_s``, ``t1_s``,
+        ``bias_m`` or ``rate_mps``), every key checked."""
+        if isinstance(d, Fault):
+            return d
+        if not isinstance(d, dict):
+            raise SchemaError(f"{where} must be a table such as {{sat = \"G10\", kind = "
+                              f"\"step\", bias_m = 50, t0_s = 100}}, got {d!r}")
+        unknown = [k for k in d if k not in FAULT_FIELDS]
+        if unknown:
+            raise SchemaError(f"{where}: unknown key(s) {', '.join(map(str, unknown))}; "
+                              f"allowed: {', '.join(FAULT_FIELDS)}")
+        if "sat" not in d:
+            raise SchemaError(f"{where}: missing sat (the satellite name, e.g. \"G10\")")
+        kind = d.get("kind", "step")
+        wrong = "rate_mps" if kind == "step" else "bias_m"
+        if wrong in d:
+            raise SchemaError(f"{where}: a {kind} fault takes "
+                              f"{'bias_m' if kind == 'step' else 'rate_mps'}, not {wrong}")
+        return cls(**d)
 
     def to_dict(self) -> dict:
         d = {"sat": self.sat, "kind": self.kind, "t0_s": self.t0_s}
