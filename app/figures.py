@@ -55,6 +55,8 @@ class RunView:
     used : (E, S) bool, tracked and above the mask.
     excluded : (E, S) bool, excluded by the algorithm.
     fault_bias_m : (E, S) injected fault (truth).
+    faulted : (E, S) bool, a fault acts on a used satellite (:attr:`raimcore.measure.Truth.
+        faulted`, the one definition).
     az_rad, el_rad : (E, S) azimuth and elevation seen from the true receiver.
     hal_m, val_m : alert limits (m).
     mask_deg : elevation mask (deg).
@@ -70,10 +72,11 @@ class RunView:
     used: np.ndarray
     excluded: np.ndarray
     fault_bias_m: np.ndarray
+    faulted: np.ndarray
     az_rad: np.ndarray
     el_rad: np.ndarray
-    hal_m: float = 40.0
-    val_m: float = 50.0
+    hal_m: float
+    val_m: float
     mask_deg: float = 0.0
     algorithm: str = ""
     isolated_idx: np.ndarray | None = None
@@ -97,7 +100,7 @@ class RunView:
         used.
         """
         state = np.zeros(self.used.shape, dtype=np.int8)
-        state[self.fault_bias_m != 0.0] = 1
+        state[self.faulted] = 1
         state[self.excluded] = 2
         state[~self.used] = 3
         return state
@@ -238,7 +241,7 @@ def _base_layout(title: str, height: int = 260, **kw) -> dict:
 
 def _fault_windows(view: RunView) -> list[dict]:
     """Shaded rectangles over the epochs where any fault is injected (truth)."""
-    active = np.any(view.fault_bias_m != 0.0, axis=1)
+    active = np.any(view.faulted, axis=1)
     if not active.any():
         return []
     t = view.t_s
@@ -311,7 +314,7 @@ def per_sat_figure(view: RunView, key: str, title: str | None = None,
     satellite at each alarm epoch is marked."""
     t = view.t_s
     values = np.asarray(view.per_sat[key], dtype=float)
-    faulty = np.any(view.fault_bias_m != 0.0, axis=0)
+    faulty = np.any(view.faulted, axis=0)
     data = []
     for j, name in enumerate(view.sat_names):
         col = values[:, j]

@@ -28,7 +28,7 @@ def multifault_figure(view: RunView, key: str = "mf") -> PanelFigure:
     thr_key, label = SCORES[key]
     t = view.t_s
     score = np.asarray(view.per_sat[key], dtype=float)
-    faulty = view.fault_bias_m != 0.0
+    faulty = view.faulted
     ever = faulty.any(axis=0)
     data = []
     for j, name in enumerate(view.sat_names):

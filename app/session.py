@@ -24,9 +24,11 @@ from pathlib import Path
 import numpy as np
 
 from raimcore import algorithms
+from raimcore.geometry import ecef_to_enu
 from raimcore.measure.faults import Fault
-from raimcore.scenario import Scenario, ScenarioResult, list_scenarios, load_scenario
-from raimcore.scenario import run_scenario as _run_scenario
+from raimcore.pipeline import ScenarioResult
+from raimcore.pipeline import run_scenario as _run_scenario
+from raimcore.scenario import Scenario, list_scenarios, load_scenario
 
 from . import panels, teaching
 from .figures import PanelFigure, RunView
@@ -42,21 +44,26 @@ RESULT_CACHE_SIZE = 8  # recent runs kept per session: going back to a setting i
 
 def run_view(result: ScenarioResult) -> RunView:
     """The figures' view of a scenario result."""
-    data, out, s = result.data, result.output, result.scenario
+    data, out, s = result.measurements, result.output, result.scenario
     spec = algorithms.get(s.algorithm)
+    extras = dict(out.extras)
+    if "particles_ecef_m" in extras:  # shown as offsets from the true position
+        extras["particles_enu_m"] = ecef_to_enu(extras.pop("particles_ecef_m"),
+                                                result.truth.pos_rx_ecef_m[:, None, :])
     return RunView(
         table=result.table.columns, per_sat={k: np.asarray(v) for k, v in out.per_sat.items()},
         sat_names=data.sat_names, used=np.asarray(data.used),
         excluded=np.asarray(out.excluded, dtype=bool),
-        fault_bias_m=np.asarray(data.fault_bias_m), az_rad=data.az_rad, el_rad=data.el_rad,
+        fault_bias_m=np.asarray(result.truth.fault_bias_m), faulted=result.truth.faulted,
+        az_rad=data.az_rad, el_rad=data.el_rad,
         hal_m=s.hal_m, val_m=s.val_m, mask_deg=s.mask_deg, algorithm=spec.label,
-        isolated_idx=np.asarray(out.isolated, dtype=int), extras=dict(out.extras))
+        isolated_idx=np.asarray(out.isolated, dtype=int), extras=extras)
 
 
 def scene_run(result: ScenarioResult, view: RunView) -> SceneRun:
-    return SceneRun(t_s=result.data.t_s, sat_names=result.data.sat_names,
-                    pos_sv_ecef_m=result.data.pos_sv_ecef_m,
-                    pos_rx_ecef_m=result.data.pos_rx_true_ecef_m, state=view.states(),
+    data = result.measurements
+    return SceneRun(t_s=data.t_s, sat_names=data.sat_names, pos_sv_ecef_m=data.pos_sv_ecef_m,
+                    pos_rx_ecef_m=result.truth.pos_rx_ecef_m, state=view.states(),
                     mask_deg=result.scenario.mask_deg)
 
 
@@ -213,18 +220,21 @@ class Session:
             h.remove()
         self._option_handles = {}
         spec = algorithms.get(self.algorithm.value)
-        current = {**dict(spec.options), **{k: v for k, v in self.scenario.options}}
+        current = {**spec.defaults, **{k: v for k, v in self.scenario.options}}
         with self.options_folder:
-            for key, default in spec.options.items():
-                value = current.get(key, default)
-                if isinstance(default, bool):
-                    h = self.gui.add_checkbox(key, bool(value))
-                elif isinstance(default, int | float):
-                    h = self.gui.add_number(key, value)
+            for k in spec.options:
+                value = current.get(k.name, k.default)
+                if k.kind == "bool":
+                    h = self.gui.add_checkbox(k.name, bool(value), hint=k.help)
+                elif k.kind == "choice":
+                    h = self.gui.add_dropdown(k.name, k.choices, initial_value=value,
+                                              hint=k.help)
+                elif k.kind in ("int", "float"):
+                    h = self.gui.add_number(k.name, value, hint=k.help)
                 else:
-                    h = self.gui.add_text(key, str(value))
+                    h = self.gui.add_text(k.name, str(value), hint=k.help)
                 h.on_update(lambda _e: self._on_control())
-                self._option_handles[key] = h
+                self._option_handles[k.name] = h
         self.teach_md.content = teaching.teaching_markdown(spec.label, spec.summary,
                                                            spec.equations, spec.reference)
 
@@ -245,19 +255,17 @@ class Session:
             "p_fa": float(self.p_fa.value), "mask_deg": float(self.mask.value),
             "seed": int(self.seed.value),
         }
-        spec = algorithms.get(self.algorithm.value)
-        for key, h in list(self._option_handles.items()):
-            if key not in spec.options:  # controls of the previous algorithm, going away
+        keys = algorithms.get(self.algorithm.value).option_keys
+        for name, h in list(self._option_handles.items()):
+            if name not in keys:  # controls of the previous algorithm, going away
                 continue
-            default = spec.options[key]
             val = h.value
-            if isinstance(default, bool):
-                val = bool(val)
-            elif isinstance(default, int):
-                val = int(val)
-            elif isinstance(default, float):
-                val = float(val)
-            changes[key] = val
+            if keys[name].kind == "float_or_auto" and isinstance(val, str) \
+                    and val.strip().lower() != "auto":
+                from raimcore.scenario import parse_value
+
+                val = parse_value(val.strip())
+            changes[name] = val
         return self.scenario.replace(**changes)
 
     def _on_algorithm(self) -> None:
@@ -304,7 +312,7 @@ class Session:
     # -- recordings ---------------------------------------------------------------------
     def open_recording(self, obs: str, nav: str) -> None:
         """Open a RINEX recording (paths on the server) and offer it as a preset."""
-        from raimcore.sky.recording import recording_scenario
+        from raimcore.scenario import recording_scenario
 
         scenario = recording_scenario(obs, nav, algorithm=self.algorithm.value)
         self.presets[scenario.name] = scenario
@@ -327,12 +335,12 @@ class Session:
         """Set the noise-correlation control to the Gauss-Markov time fitted to the open
         recording's errors (:func:`raimcore.sky.recording.error_statistics`); returns it, or
         None when there is no recording or no finite positive fit."""
-        from raimcore.sky.recording import error_statistics
+        from raimcore.measure import error_statistics
 
         if self.result is None or self.result.scenario.source != "rinex":
             return None
         try:
-            corr = error_statistics(self.result.data).corr_s
+            corr = error_statistics(self.result.measurements, self.result.truth).corr_s
         except ValueError as exc:
             self._show_error(exc)
             return None
@@ -364,8 +372,9 @@ class Session:
     def _visible_sats(self) -> list[str]:
         if self.result is None:
             return list(self.scenario.sats) or ["-"]
-        used = np.asarray(self.result.data.used).any(axis=0)
-        return [n for n, u in zip(self.result.data.sat_names, used, strict=True) if u]
+        data = self.result.measurements
+        used = np.asarray(data.used).any(axis=0)
+        return [n for n, u in zip(data.sat_names, used, strict=True) if u]
 
     def _sync_fault_controls(self) -> None:
         """Show the selected fault in the editor controls (without recomputing)."""
@@ -500,10 +509,12 @@ class Session:
         tm.run_s, tm.figures_s, tm.push_s, tm.total_s = t1 - t0, t2 - t1, t3 - t2, t3 - t0
         tm.n_recomputes += 1
         tm.history.append((tm.run_s, tm.figures_s, tm.push_s, tm.total_s))
-        self.status.content = (f"**{scenario.name}** · {len(result.data.t_s)} epochs · "
-                               f"{len(result.data.sat_names)} satellites · update "
+        self.status.content = (f"**{scenario.name}** · {len(result.measurements.t_s)} "
+                               f"epochs · {len(result.measurements.sat_names)} satellites · "
+                               f"update "
                                f"{1e3 * tm.total_s:.0f} ms")
-        self.rec_notes.content = "".join(f"- {html.escape(n)}\n" for n in result.data.notes)
+        self.rec_notes.content = "".join(f"- {html.escape(n)}\n"
+                                         for n in result.summary.notes)
         self.rec_use_corr.visible = scenario.source == "rinex"
         self._refresh_fault_sats()
         self._refresh_per_sat_pick()
@@ -568,7 +579,7 @@ class Session:
     def _time_index(self, t_s: float) -> int:
         if self.result is None:
             return 0
-        t = self.result.data.t_s
+        t = self.result.measurements.t_s
         return int(np.clip(np.searchsorted(t, t_s - 1e-9), 0, len(t) - 1))
 
     def _on_time(self) -> None:

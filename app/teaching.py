@@ -10,7 +10,7 @@ import re
 
 import numpy as np
 
-from raimcore.scenario import in_fault_memory
+from raimcore.scoring import in_fault_memory
 
 from .figures import RunView
 
@@ -92,7 +92,7 @@ def verdict(view: RunView, p_fa: float | None = None) -> str:
     lines = []
     for j in faulty:
         name = view.sat_names[j]
-        active = (view.fault_bias_m[:, j] != 0.0) & view.used[:, j]
+        active = view.faulted[:, j]
         if not active.any():
             lines.append(f"Fault on {name} never seen: the satellite is not tracked "
                          f"while the fault is on.")
@@ -126,9 +126,9 @@ def verdict(view: RunView, p_fa: float | None = None) -> str:
             else:
                 msg += ", nothing excluded"
         lines.append(msg + ".")
-    faulted = np.any((view.fault_bias_m != 0.0) & view.used, axis=1)
+    faulted = np.any(view.faulted, axis=1)
     # Windowed or filtering algorithms still hold a fault for `memory_epochs` after it ends:
-    # their alarms there are not false alarms (the same rule as raimcore.scenario.summarize).
+    # their alarms there are not false alarms (the same rule as raimcore.scoring.summarize).
     memory = in_fault_memory(faulted, view.column("memory_epochs"))
     n_fa = int(np.sum(alarm & ~faulted & ~memory))
     if n_fa:

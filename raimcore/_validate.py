@@ -103,7 +103,8 @@ def check_array(name: str, value, *, ndim_min: int = 1, last: tuple | None = Non
 
     Parameters
     ----------
-    last : required trailing shape; an entry ``None`` accepts any length there.
+    last : required trailing shape; an ``int`` entry must match, a ``str`` entry (a name
+        such as ``"m"``) or ``None`` accepts any length.
     match : what the trailing shape comes from, for the message, e.g. ``"h (..., 6, 4)"``.
     """
     if isinstance(value, (str, bytes)):
@@ -112,19 +113,21 @@ def check_array(name: str, value, *, ndim_min: int = 1, last: tuple | None = Non
         a = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a numeric array") from None
+    want = None
     if last is not None:
         ndim_min = max(ndim_min, len(last))
-    want = None if last is None else shape_str(
-        ["*" if d is None else d for d in last])
-    if a.ndim < ndim_min:
-        need = want or f"at least {ndim_min} dimension(s)"
-        raise ValueError(f"{name} must have shape {need}"
-                         + (f" to match {match}" if match else "") + f", got {a.shape}")
-    if last is not None:
+        want = shape_str(["*" if d is None else d for d in last])
+    bad = a.ndim < ndim_min
+    if not bad and last is not None:
         tail = a.shape[a.ndim - len(last):]
-        if any(d is not None and t != d for t, d in zip(tail, last, strict=True)):
-            raise ValueError(f"{name} must have shape {want}"
-                             + (f" to match {match}" if match else "") + f", got {a.shape}")
+        bad = any(isinstance(d, (int, np.integer)) and t != d
+                  for t, d in zip(tail, last, strict=True))
+    if bad:
+        if want is None:
+            raise ValueError(f"{name} must have at least {ndim_min} dimension(s), "
+                             f"got shape {a.shape}")
+        raise ValueError(f"{name} must have shape {want}"
+                         + (f" to match {match}" if match else "") + f", got {a.shape}")
     if finite and not np.all(np.isfinite(a)):
         raise ValueError(f"{name} must contain only finite values (no NaN or inf)")
     return a

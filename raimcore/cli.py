@@ -23,16 +23,75 @@ def _add_list(sub):
 
 def _cmd_list(args) -> int:
     from . import algorithms
-    from .scenario import list_scenarios
+    from .scenario import list_scenarios, scenario_report
 
-    print("Scenarios (raim run NAME):")
+    print("Scenarios (raim run NAME; raim show NAME for a report):")
     for name, desc in list_scenarios().items():
-        print(f"  {name:<18} {desc}")
-    print("\nAlgorithms (--algorithm A):")
+        mark = " [report]" if scenario_report(name) else ""
+        print(f"  {name:<18} {desc}{mark}")
+    print("\nAlgorithms (--algorithm A; raim keys A for their options):")
     for name in algorithms.names():
         spec = algorithms.get(name)
-        opts = ", ".join(f"{k}={v}" for k, v in spec.options.items())
+        opts = ", ".join(f"{k.name}={_fmt_value(k.default)}" for k in spec.options)
         print(f"  {name:<18} {spec.label}" + (f"  [options: {opts}]" if opts else ""))
+    for mod, why in algorithms.failed().items():
+        print(f"  (module {mod} failed to load: {why})")
+    return 0
+
+
+def _fmt_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, tuple):
+        return "[" + ", ".join(_fmt_value(x) for x in v) + "]"
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def _add_keys(sub):
+    p = sub.add_parser("keys", help="list the scenario keys and algorithm options",
+                       description="Every key a scenario file, --set or the dashboard takes: "
+                       "type, default, unit, allowed values and help.")
+    p.add_argument("which", nargs="?", default=None, metavar="ALGORITHM|scenario",
+                   help="only the options of this algorithm, or 'scenario' for the "
+                        "scenario keys (default: all)")
+    p.set_defaults(func=_cmd_keys)
+
+
+def _cmd_keys(args) -> int:
+    from . import algorithms
+    from .scenario import scenario_keys
+
+    groups = []
+    if args.which in (None, "scenario"):
+        groups.append(("scenario keys", list(scenario_keys().values())))
+    if args.which != "scenario":
+        names = algorithms.names() if args.which is None else [algorithms.get(args.which).name]
+        groups += [(f"options of {n}", list(algorithms.get(n).options)) for n in names]
+    for title, keys in groups:
+        print(f"{title}:")
+        for k in keys:
+            unit = f" [{k.unit}]" if k.unit else ""
+            print(f"  {k.name}{unit} = {_fmt_value(k.default)}  ({k.allowed}): {k.help}")
+    return 0
+
+
+def _add_show(sub):
+    p = sub.add_parser("show", help="print a built-in scenario's report and file",
+                       description="Print a built-in scenario's report (results against the "
+                       "paper), when it has one, and its TOML file.")
+    p.add_argument("scenario", help="built-in scenario name (see 'raim list')")
+    p.set_defaults(func=_cmd_show)
+
+
+def _cmd_show(args) -> int:
+    from .scenario import _scenario_text, scenario_report
+
+    text, where = _scenario_text(args.scenario)
+    report = scenario_report(args.scenario) if where.startswith("scenario ") else None
+    print(report.rstrip() if report else f"# {where}\n\n(no report)")
+    print(f"\n---\n{where}:\n\n{text.rstrip()}")
     return 0
 
 
@@ -44,8 +103,9 @@ examples:
   raim run my_scenario.toml --algorithm parity --seed 7 --out result.json
   raim run --obs STATION.rnx --nav BRDC.rnx --fault G05,ramp,2,600   (a real recording)
 
---set takes any scenario key (see README, "Scenario keys") or algorithm option; values are
-TOML literals: --set sigma_m=3 --set systems='["GPS","BDS"]' --set baro=true.
+--set takes any scenario key or option of the chosen algorithm ('raim keys' lists them,
+with units and allowed values); values are TOML literals:
+  --set sigma_m=3 --set systems='["GPS","BDS"]' --set baro=true
 --fault replaces the scenario's faults (repeat it for several faults):
   SAT,step,BIAS_M,T0_S[,T1_S]    a bias of BIAS_M metres from T0_S until T1_S
   SAT,ramp,RATE_MPS,T0_S[,T1_S]  a bias growing at RATE_MPS metres per second from T0_S
@@ -91,8 +151,7 @@ def _recording_scenario(args, over: dict):
         return None
     if not (args.obs and args.nav):
         raise ValueError("--obs and --nav go together (observation and navigation file)")
-    from .scenario import load_scenario
-    from .sky.recording import recording_scenario
+    from .scenario import load_scenario, recording_scenario
 
     rec = {"source": "rinex", "obs": args.obs, "nav": args.nav}
     if args.scenario:
@@ -134,7 +193,8 @@ def _check_out_file(path: Path | None) -> None:
 
 
 def _cmd_run(args) -> int:
-    from .scenario import load_scenario, run_scenario
+    from .pipeline import run_scenario
+    from .scenario import load_scenario
 
     _check_out_file(args.out)
     over = _overrides(args)
@@ -146,9 +206,9 @@ def _cmd_run(args) -> int:
         else:
             result.table.to_json(args.out)
     if args.quiet:
-        print(json.dumps(result.summary))
+        print(json.dumps(result.summary.to_dict(), allow_nan=False))
     else:
-        for note in result.data.notes:
+        for note in result.summary.notes:
             print(f"note: {note}")
         print(format_summary(result))
         if args.out is not None:
@@ -157,82 +217,84 @@ def _cmd_run(args) -> int:
 
 
 def format_summary(result) -> str:
-    """A short human-readable summary of a :class:`~raimcore.scenario.ScenarioResult`."""
+    """A short human-readable summary of a :class:`~raimcore.pipeline.ScenarioResult`:
+    every rate with its counts and 95% interval, the epochs that enter no rate named."""
     s, sm = result.scenario, result.summary
     faults = ", ".join(
         f"{f.sat} {f.kind} " + (f"{f.bias_m:g} m" if f.kind == "step" else f"{f.rate_mps:g} m/s")
         + f" from t={f.t0_s:g} s" + (f" to {f.t1_s:g} s" if math.isfinite(f.t1_s) else "")
         for f in s.faults) or "none"
     lines = [
-        f"scenario {s.name}: algorithm {s.algorithm}, {sm['epochs']} epochs, "
+        f"scenario {s.name}: algorithm {s.algorithm}, {sm.epochs} epochs, "
         f"sigma {s.sigma_m:g} m ({s.noise}"
         + (f", correlated over {s.noise_corr_s:g} s" if s.noise_corr_s > 0 else "")
         + f"), p_fa {s.p_fa:g}, faults: {faults}",
-        f"  unavailable epochs: {sm['unavailable_epochs']}; false-alarm rate on fault-free "
-        f"epochs: {_pct(sm['false_alarm_rate'])}",
+        f"  unavailable epochs (no position, in no rate): {sm.unavailable_epochs}"
+        + (f"; detect-only epochs (one redundant measurement: no isolation): "
+           f"{sm.detect_only_epochs}" if sm.detect_only_epochs else ""),
+        f"  false-alarm rate on fault-free epochs: {sm.false_alarm}",
     ]
-    if sm.get("faulted_epochs"):
-        first = sm["first_alarm_t_s"]
+    if sm.faulted_epochs:
+        first = sm.first_alarm_t_s
         lines += [
-            f"  fault from t = {sm['first_fault_t_s']:g} s; first alarm: "
+            f"  fault from t = {sm.first_fault_t_s:g} s; first alarm: "
             + (f"t = {first:g} s" if first is not None else "never"),
-            f"  detection rate over faulted epochs: {_pct(sm['detection_rate'])} "
-            f"(theory, ncx2: {_pct(sm['pd_theory_mean'])})",
-            f"  correct isolation rate over faulted epochs: {_pct(sm['correct_isolation_rate'])}",
+            f"  detection rate over faulted epochs: {sm.detection} "
+            f"(theory, ncx2: {_pct(sm.pd_theory_mean)})",
+            f"  correct isolation rate over faulted epochs: {sm.correct_isolation}"
+            + (" (every faulted epoch is detect-only or unavailable)"
+               if sm.correct_isolation.n == 0 else ""),
             f"  mean HPE over faulted epochs: before isolation "
-            f"{sm['hpe_before_faulted_mean_m']:.1f} m, "
-            f"after {sm['hpe_after_faulted_mean_m']:.1f} m",
+            f"{_m(sm.hpe_before_faulted_mean_m, 1)}, after {_m(sm.hpe_after_faulted_mean_m, 1)}",
         ]
-    if "hpe_nominal_mean_m" in sm:
-        lines.append(f"  mean HPE on fault-free epochs: {sm['hpe_nominal_mean_m']:.1f} m")
-    if "fault_memory_epochs" in sm:
+    if sm.hpe_nominal_mean_m is not None:
+        lines.append(f"  mean HPE on fault-free epochs: {sm.hpe_nominal_mean_m:.1f} m")
+    if sm.fault_memory_epochs:
         lines.append(f"  epochs after a fault still in the algorithm's memory (not counted as "
-                     f"fault-free): {sm['fault_memory_epochs']}")
-    if "rmse_before_m" in sm:
-        lines.append(f"  3-D position RMSE: before isolation {sm['rmse_before_m']:.2f} m, "
-                     f"after {sm['rmse_after_m']:.2f} m"
-                     + (f"; mean N_eff {sm['n_eff_mean']:.1f}" if "n_eff_mean" in sm else ""))
-    if "hpl_mean_m" in sm:
-        lines.append(f"  mean HPL {sm['hpl_mean_m']:.1f} m, mean VPL {sm['vpl_mean_m']:.1f} m"
+                     f"fault-free): {sm.fault_memory_epochs}")
+    if sm.rmse_before_m is not None:
+        lines.append(f"  3-D position RMSE: before isolation {sm.rmse_before_m:.2f} m, "
+                     f"after {_m(sm.rmse_after_m, 2)}"
+                     + (f"; mean N_eff {sm.n_eff_mean:.1f}" if sm.n_eff_mean is not None
+                        else ""))
+    if sm.hpl_mean_m is not None:
+        lines.append(f"  mean HPL {sm.hpl_mean_m:.1f} m, mean VPL {_m(sm.vpl_mean_m, 1)}"
                      + (f"; available (HPL <= HAL {s.hal_m:g} m and VPL <= VAL {s.val_m:g} m): "
-                        f"{_pct(sm['pl_availability'])}" if "pl_availability" in sm else ""))
-    if "baro_vpl_lower_share" in sm:
-        lines.append(f"  baro lowers VPL at {_pct(sm['baro_vpl_lower_share'])} of epochs "
-                     f"(not higher at {_pct(sm['baro_vpl_not_higher_share'])}), "
-                     f"lowers HPL at {_pct(sm['baro_hpl_lower_share'])}")
+                        f"{sm.pl_availability}" if sm.pl_availability is not None else ""))
+    if sm.baro_vpl_lower_share is not None:
+        lines.append(f"  baro lowers VPL at {_pct(sm.baro_vpl_lower_share)} of epochs "
+                     f"(not higher at {_pct(sm.baro_vpl_not_higher_share)}), "
+                     f"lowers HPL at {_pct(sm.baro_hpl_lower_share)}")
     return "\n".join(lines)
 
 
-def _add_dashboard(sub):
-    p = sub.add_parser("dashboard", help="start the web dashboard (needs the [app] extra)",
-                       description="Start the RAIM Studio web dashboard (viser + plotly) and "
-                       "print its address. It listens on 127.0.0.1 (this machine only) "
-                       "unless --host names another interface.")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="interface to listen on (default %(default)s)")
-    p.add_argument("--port", type=int, default=8080, help="port (default %(default)s)")
-    p.add_argument("--scenario", default="default",
-                   help="built-in scenario name or .toml file to start from "
-                        "(default %(default)s)")
-    _add_recording_args(p)
-    p.set_defaults(func=_cmd_dashboard)
+def _m(x, digits: int) -> str:
+    return "n/a" if x is None else f"{x:.{digits}f} m"
 
 
-def _cmd_dashboard(args) -> int:
-    try:  # imported here so that `import raimcore` never imports viser or plotly
-        from app.server import serve
-    except ImportError as exc:
-        raise ValueError(f"the dashboard needs the optional dependencies: pip install "
-                         f"'raim-studio[app]' ({exc})") from None
-    from .scenario import load_scenario
+def _load_plugins(sub) -> None:
+    """Subcommands that other packages register (entry-point group ``raim.commands``: a
+    function ``add(subparsers)``). The dashboard comes this way from the ``app`` package, so
+    ``raimcore`` never imports it; without it, ``raim dashboard`` says how to install it."""
+    from importlib.metadata import entry_points
 
-    if args.obs or args.nav:  # a recording: read it now, so file errors come before serving
-        args.scenario = None if args.scenario == "default" else args.scenario
-        serve(args.host, args.port, _recording_scenario(args, {}))
-        return 0
-    load_scenario(args.scenario)  # fail early, with the scenario error, before serving
-    serve(args.host, args.port, args.scenario)
-    return 0
+    have = set()
+    for ep in entry_points(group="raim.commands"):
+        try:
+            ep.load()(sub)
+            have.add(ep.name)
+        except ImportError:  # the plugin's package is absent: fall back below
+            continue
+    if "dashboard" not in have:
+        p = sub.add_parser("dashboard", help="start the web dashboard (not installed)",
+                           description="The dashboard is not installed.")
+        p.add_argument("rest", nargs=argparse.REMAINDER)
+        p.set_defaults(func=_cmd_no_dashboard)
+
+
+def _cmd_no_dashboard(args) -> int:
+    raise ValueError("the dashboard is not installed: pip install 'raim-studio[app]' "
+                     "(it needs the app package, viser and plotly)")
 
 
 COMPARE_EPILOG = """\
@@ -278,7 +340,8 @@ COMPARE_COLUMNS = (
 
 
 def _cmd_compare(args) -> int:
-    from .scenario import compare_algorithms, load_scenario
+    from .pipeline import compare_algorithms
+    from .scenario import load_scenario
 
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
@@ -302,7 +365,7 @@ def _cmd_compare(args) -> int:
                    else sum(vals) / len(vals)) if vals else None
             row[key] = agg
         rows.append(row)
-    for note in per_seed[0][0].data.notes:
+    for note in per_seed[0][0].summary.notes:
         print(f"note: {note}")
     print(f"scenario {scenario.name}: {per_seed[0][0].summary['epochs']} epochs, "
           f"seed {seed0}" + (f"..{seed0 + args.seeds - 1}" if args.seeds > 1 else ""))
@@ -411,25 +474,38 @@ def _pct(x) -> str:
     return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{100 * x:.1f}%"
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``raim run: error: ... (raim run --help)``."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="raim", description="RAIM Studio: GNSS integrity monitoring (RAIM) scenarios, "
         "algorithms and studies.")
     parser.add_argument("--version", action="version", version=f"raim {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for add in (_add_list, _add_run, _add_dashboard):
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=_Parser)
+    for add in (_add_list, _add_keys, _add_show, _add_run, _add_compare, _add_montecarlo):
         add(sub)
-    _add_compare(sub)
-    _add_montecarlo(sub)
+    _load_plugins(sub)
     return parser
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    """Run the ``raim`` command; returns the exit status (2: bad input, 130: interrupted)."""
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
         return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("raim: interrupted", file=sys.stderr)
+        return 130
     except ValueError as exc:
+        if not _raised_by_us(exc):
+            return _bug(exc)
         print(f"raim: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # `raim run ... | head`: the reader left, nothing to say
@@ -439,6 +515,33 @@ def main(argv=None) -> int:
         print(f"raim: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "),
               file=sys.stderr)
         return 1
+    except Exception as exc:  # noqa: BLE001 - a bug: show it, and ask for a report
+        return _bug(exc)
+
+
+def _raised_by_us(exc: BaseException) -> bool:
+    """True when ``exc`` was raised by RAIM Studio's own code (a checked input), False when
+    it comes from inside numpy, scipy or the standard library (a bug of ours)."""
+    tb = exc.__traceback__
+    last = None
+    while tb is not None:
+        last = tb
+        tb = tb.tb_next
+    if last is None:
+        return True
+    here = Path(__file__).resolve().parent
+    app = here.parent / "app"
+    where = Path(last.tb_frame.f_code.co_filename).resolve()
+    return here in where.parents or app in where.parents
+
+
+def _bug(exc: BaseException) -> int:
+    import traceback
+
+    traceback.print_exception(exc)
+    print(f"raim: internal error ({type(exc).__name__}); this is a bug in RAIM Studio, "
+          "please report it with the command line and the traceback above", file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":

@@ -116,10 +116,10 @@ def geometry_rows(pos_sv_ecef_m, pos_rx_ecef_m, clock_cols, *, frame: str = "enu
     Returns ``h (..., S, 3 + q)`` and ``range_m (..., S)``.
     """
     check_choice("frame", frame, ("enu", "ecef"))
-    sv = check_array("pos_sv_ecef_m", pos_sv_ecef_m, last=(None, 3), finite=False)
+    sv = check_array("pos_sv_ecef_m", pos_sv_ecef_m, last=("S", 3), finite=False)
     rx = check_array("pos_rx_ecef_m", pos_rx_ecef_m, last=(3,), finite=False)
     s_n = sv.shape[-2]
-    cc = check_array("clock_cols", clock_cols, last=(s_n, None),
+    cc = check_array("clock_cols", clock_cols, last=(s_n, "q"),
                      match=f"pos_sv_ecef_m {shape_str((s_n, 3))}")
     if cc.ndim != 2:
         raise ValueError(f"clock_cols must have shape ({s_n}, q), got {cc.shape}")
@@ -163,7 +163,7 @@ def normal_solve(a, w, *, strict: bool = True):
     ------
     ValueError naming ``a`` or ``w`` for a bad shape or a negative / infinite weight.
     """
-    a = check_array("a", a, ndim_min=2, finite=False)
+    a = check_array("a", a, last=("S", "n"), finite=False)
     s_n, n = a.shape[-2:]
     w = check_weights("w", w, last=(s_n,), match=f"a {shape_str((s_n, n))}")
     batch = check_batch({"a": a.shape[:-2], "w": w.shape[:-1]})
@@ -220,7 +220,7 @@ def wls(pos_sv_ecef_m, pr_m, weights, sys_idx, n_sys: int | None = None, *,
     ValueError naming the argument for bad shapes, negative or infinite weights, system
     indices outside [0, n_sys), ``max_iter < 1`` or ``tol_m <= 0``.
     """
-    sv = check_array("pos_sv_ecef_m", pos_sv_ecef_m, last=(None, 3), finite=False)
+    sv = check_array("pos_sv_ecef_m", pos_sv_ecef_m, last=("S", 3), finite=False)
     s_n = sv.shape[-2]
     desc = f"pos_sv_ecef_m {shape_str((s_n, 3))}"
     pr = check_array("pr_m", pr_m, last=(s_n,), finite=False, match=desc)
@@ -252,10 +252,15 @@ def wls(pos_sv_ecef_m, pr_m, weights, sys_idx, n_sys: int | None = None, *,
     n_used = np.sum(used, axis=-1)
     converged = np.zeros(batch, dtype=bool)
     done = np.zeros(batch, dtype=bool)
+    # Rows of unused satellites are multiplied by a zero weight; only a non-finite one
+    # (a satellite without a position) must be zeroed explicitly (0 * NaN = NaN).
+    mask_rows = not np.all(np.isfinite(sv))
     for _ in range(max_iter):
         h, rng = _geometry_rows(sv, x, cc, "ecef")
-        h = np.where(used[..., None], h, 0.0)
-        dz = np.where(used, pr - rng - clk @ cc.T, 0.0)
+        dz = pr - rng - clk @ cc.T
+        if mask_rows:
+            h = np.where(used[..., None], h, 0.0)
+            dz = np.where(used, dz, 0.0)
         n_inv, present, ok = _normal_solve(h, w, strict=False)
         g = (np.swapaxes(h, -1, -2) @ (w * dz)[..., None])
         dx = (n_inv @ g)[..., 0]
@@ -272,7 +277,8 @@ def wls(pos_sv_ecef_m, pr_m, weights, sys_idx, n_sys: int | None = None, *,
             break
     h_enu, rng = _geometry_rows(sv, x, cc, "enu")
     resid = np.where(used, pr - rng - clk @ cc.T, np.nan)
-    cov, present, ok = _normal_solve(np.where(used[..., None], h_enu, 0.0), w)
+    cov, present, ok = _normal_solve(np.where(used[..., None], h_enu, 0.0) if mask_rows
+                                     else h_enu, w)
     n_states = 3 + np.sum(present[..., 3:], axis=-1)
     available = ok & (n_used >= n_states) & converged
     nan = lambda a, extra: np.where(available.reshape(available.shape + (1,) * extra), a,  # noqa: E731

@@ -394,12 +394,20 @@ def _check_together(s: Scenario) -> None:
         if missing:
             raise SchemaError(f"rename: unknown satellite(s) {', '.join(missing)} in the "
                               f"nominal {'+'.join(s.systems)} constellation")
-        known = [mapping.get(n, n) for n in base]
-        for where, names in (("sats", s.sats), ("faults", [f.sat for f in s.faults]),
+        bad = [n for n in s.sats if n not in base]  # sats are chosen before renaming
+        if bad:
+            raise SchemaError(f"sats: satellite(s) {', '.join(bad)} not in the nominal "
+                              f"{'+'.join(s.systems)} constellation"
+                              f"{did_you_mean(bad[0], base)}")
+        known = [mapping.get(n, n) for n in (s.sats or base)]
+        for where, names in (("faults", [f.sat for f in s.faults]),
                              ("restrict", [x for r in s.restrict for x in r.sats])):
             bad = [n for n in names if n not in known]
             if bad:
-                raise SchemaError(f"{where}: satellite(s) {', '.join(bad)} not in the nominal "
+                raise SchemaError(f"{where}: satellite(s) {', '.join(bad)} not in this "
+                                  f"scenario's satellites ({', '.join(known)})"
+                                  if s.sats else
+                                  f"{where}: satellite(s) {', '.join(bad)} not in the nominal "
                                   f"{'+'.join(s.systems)} constellation"
                                   f"{did_you_mean(bad[0], known)}")
 

@@ -20,7 +20,8 @@ pytest.importorskip("plotly")
 
 from app import figures, panels, scene, teaching  # noqa: E402
 from app.scheduler import CoalescingScheduler  # noqa: E402
-from raimcore.scenario import load_scenario, run_scenario  # noqa: E402
+from raimcore.pipeline import run_scenario
+from raimcore.scenario import load_scenario  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 60.0
@@ -60,7 +61,7 @@ def test_land_mesh_faces_outward_on_the_ellipsoid():
 
 def test_orbit_rings_contain_the_satellites_as_the_earth_turns():
     res = run_scenario(load_scenario("default", duration_s=600.0, step_s=60.0))
-    pos, t = res.data.pos_sv_ecef_m, res.data.t_s
+    pos, t = res.measurements.pos_sv_ecef_m, res.measurements.t_s
     rings = scene.orbit_rings(pos, t, n_points=2048)
     from viser.transforms import SO3
 
@@ -316,13 +317,13 @@ def test_fault_controls_edit_add_and_remove_faults(session):
     _settle(s)
     (f,) = s.result.scenario.faults
     assert (f.sat, f.kind, f.bias_m, f.t0_s, f.t1_s) == ("G10", "step", 200.0, 100.0, 300.0)
-    bias = s.result.data.fault_bias_m[:, s.result.data.sat_names.index("G10")]
-    assert np.all(bias[(s.result.data.t_s >= 100) & (s.result.data.t_s < 300)] == 200.0)
+    bias = s.result.truth.fault_bias_m[:, s.result.measurements.sat_names.index("G10")]
+    assert np.all(bias[(s.result.measurements.t_s >= 100) & (s.result.measurements.t_s < 300)] == 200.0)
     assert "G10 detected at t = 100 s" in s.verdict_md.content
     # Only visible satellites are offered.
-    used = s.result.data.used.any(axis=0)
+    used = s.result.measurements.used.any(axis=0)
     offered = set(s.fault_sat.options)
-    assert offered == {n for n, u in zip(s.result.data.sat_names, used, strict=True) if u}
+    assert offered == {n for n, u in zip(s.result.measurements.sat_names, used, strict=True) if u}
     # Add a second fault, then remove the first.
     s.fault_add.value = True  # buttons: setting value fires on_click like a real click
     _settle(s)
@@ -401,7 +402,7 @@ def test_every_registered_algorithm_is_offered_with_its_options(session):
         spec = algorithms.get(name)
         assert session.result.scenario.algorithm == name
         assert not session.status.content.startswith("**Error")
-        assert set(session._option_handles) == set(spec.options)
+        assert set(session._option_handles) == set(spec.option_keys)
         assert spec.label in session.teach_md.content
         assert "detection" in session.figures and "errors" in session.figures
         # every per-epoch output column of the algorithm is drawn in some panel
@@ -423,7 +424,7 @@ def test_preset_switch_loads_the_scenario(session):
     session.preset.value = "seed000-step"
     _settle(session)
     res = session.result
-    assert res.scenario.name == "seed000-step" and len(res.data.sat_names) == 6
+    assert res.scenario.name == "seed000-step" and len(res.measurements.sat_names) == 6
     assert session.sigma.value == 33.0 and session.time.max == 100.0
     assert session.fault_sat.value == "G03" and session.fault_kind.value == "step"
 
@@ -432,7 +433,7 @@ def test_exports_csv_and_standalone_html(session):
     csv_text = session.table_csv().decode()
     header = csv_text.splitlines()[0].split(",")
     assert header[:3] == ["t_s", "n_sat", "status"]
-    assert len(csv_text.splitlines()) == 1 + len(session.result.data.t_s)
+    assert len(csv_text.splitlines()) == 1 + len(session.result.measurements.t_s)
     page = session.figures_html().decode()
     assert "plotly.js v" in page  # plotly.js embedded, not loaded from a CDN
     assert "<script src=" not in page and "<script type=\"text/javascript\" src=" not in page

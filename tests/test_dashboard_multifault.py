@@ -9,7 +9,8 @@ pytest.importorskip("plotly")
 from app import panels  # noqa: E402
 from app.session import run_view  # noqa: E402
 from raimcore import algorithms  # noqa: E402
-from raimcore.scenario import load_scenario, run_scenario  # noqa: E402
+from raimcore.pipeline import run_scenario
+from raimcore.scenario import load_scenario  # noqa: E402
 
 
 def test_gf_rs_qv_are_offered_by_the_registry():

@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("plotly")
 
-from raimcore.sky.recording import recording_scenario  # noqa: E402
+from raimcore.scenario import recording_scenario  # noqa: E402
 
 ESBC_OBS = "ESBC00DNK_R_20201770000_02H_30S_MO.rnx"
 ESBC_NAV = "ESBC00DNK_R_20201770000_01D_MN.rnx"
@@ -48,13 +48,13 @@ def _settle(s):
 
 def test_recording_opens_with_its_real_sky(session):
     res = session.result
-    assert res.scenario.source == "rinex" and len(res.data.t_s) == 240
-    names = res.data.sat_names
+    assert res.scenario.source == "rinex" and len(res.measurements.t_s) == 240
+    names = res.measurements.sat_names
     assert any(n.startswith("G") for n in names) and any(n.startswith("C") for n in names)
     assert session.time.max == 7170.0 and session.sigma.value == 1.0
     assert ESBC_OBS[:9] in session.status.content
     # Real satellites sit on their orbits, and the scene shows them.
-    r = np.linalg.norm(res.data.pos_sv_ecef_m, axis=-1)
+    r = np.linalg.norm(res.measurements.pos_sv_ecef_m, axis=-1)
     assert (r > 2.5e7).all()
     assert all(f.visible for f in session.scene._sat_frames)
     # Fault-free: no alarm, positions within 10 m.
@@ -93,7 +93,7 @@ def test_open_recording_from_server_paths_and_bad_path(session, tmp_path):
     _settle(session)
     assert session.result.scenario.name == "slac1180"
     assert session.preset.value == "slac1180" and "slac1180" in session.presets
-    assert all(n.startswith("G") for n in session.result.data.sat_names)
+    assert all(n.startswith("G") for n in session.result.measurements.sat_names)
     # Back to a built-in simulated preset and to the recording again.
     session.preset.value = "default"
     _settle(session)
@@ -116,7 +116,7 @@ def test_upload_both_files_opens_the_recording(session):
         session._on_upload(button, field)
     _settle(session)
     assert session.result.scenario.obs.startswith(session._upload_dir)
-    assert len(session.result.data.t_s) == 241
+    assert len(session.result.measurements.t_s) == 241
     upload_dir = session._upload_dir
     session.close()
     import os

@@ -50,7 +50,7 @@ class AlgorithmOutput:
         statistic of each satellite, NaN where unused), ``"isolability"``.
     columns : extra per-epoch columns (E,), e.g. ``"hpl_m"``, ``"vpl_m"``, ``"n_eff"``.
     extras : other per-epoch arrays (E, ...) for displays, not in the result table, e.g.
-        ``"particles_enu_m"`` (E, K, 3) and ``"particle_weight"`` (E, K) of ``pf-llr``.
+        ``"particles_ecef_m"`` (E, K, 3) and ``"particle_weight"`` (E, K) of ``pf-llr``.
     """
 
     status: np.ndarray

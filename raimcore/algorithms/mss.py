@@ -42,7 +42,18 @@ from functools import lru_cache
 import numpy as np
 from scipy import optimize, stats
 
-from .._validate import check_probability
+from .._validate import (
+    check_array,
+    check_batch,
+    check_indices,
+    check_int,
+    check_mask,
+    check_positive,
+    check_probability,
+    check_weights,
+    shape_str,
+)
+from ..lsq import _scaled, _well_conditioned
 
 # Per-epoch status codes (same strings as raimcore.algorithms.base.STATUS_*).
 STATUS_OK = "ok"
@@ -59,8 +70,9 @@ IDENT_UNAVAILABLE = "unavailable"  # detection fired but too few measurements to
 # A sub-solution whose leverage is this close to 1 is unobservable (its satellite carries
 # no redundancy); its separation covariance would be infinite.
 _LEVERAGE_TOL = 1e-9
-# Normal matrices with a larger condition number are treated as singular geometry.
-_COND_MAX = 1e12
+# Singular geometry: the diagonally scaled normal matrix has a reciprocal condition number
+# below raimcore.lsq.RCOND_MIN = 1e-12 (the test every kernel shares; scale-free, so the
+# units of the states and the size of the weights do not matter).
 
 
 @dataclass(frozen=True)
@@ -172,10 +184,17 @@ def geometry_rows(u_enu, sys_idx, n_sys: int, *, baro: bool) -> np.ndarray:
     Returns
     -------
     (..., S + baro, 3 + n_sys) rows ``[-u, c]`` (and the baro row).
+
+    Raises
+    ------
+    ValueError naming the argument for a bad shape or a system index outside [0, n_sys).
     """
-    u = np.asarray(u_enu, dtype=float)
+    u = check_array("u_enu", u_enu, last=("S", 3), finite=False)
+    n_sys = check_int("n_sys", n_sys, 1)
+    sys_idx = check_indices("sys_idx", sys_idx, length=u.shape[-2], hi=n_sys,
+                            match=f"u_enu {shape_str((u.shape[-2], 3))}")
     clock = np.zeros((u.shape[-2], n_sys))
-    clock[np.arange(u.shape[-2]), np.asarray(sys_idx)] = 1.0
+    clock[np.arange(u.shape[-2]), sys_idx] = 1.0
     h = np.concatenate([-u, np.broadcast_to(clock, u.shape[:-1] + (n_sys,))], axis=-1)
     if baro:
         row = np.zeros(3 + n_sys)
@@ -189,14 +208,15 @@ def _normal_inverse(h, w):
 
     Columns no used row touches (a system with no satellite in view) are decoupled with a
     unit diagonal so the rest stays solvable; their count is removed from ``n_states``.
-    Returns ``p0 (B, n, n)``, ``n_states (B,)`` and ``ok (B,)`` (False: singular geometry).
+    Returns ``p0 (B, n, n)``, ``n_states (B,)`` and ``ok (B,)`` (False: singular geometry,
+    judged on the diagonally scaled matrix, see :data:`raimcore.lsq.RCOND_MIN`).
     """
     a = np.einsum("bmi,bm,bmj->bij", h, w, h)
     active = np.any((h != 0.0) & (w[..., None] > 0.0), axis=-2)  # (B, n)
     n = h.shape[-1]
     a = a + np.einsum("bi,ij->bij", (~active).astype(float), np.eye(n))
-    cond = np.linalg.cond(a)
-    ok = np.isfinite(cond) & (cond < _COND_MAX)
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero diagonal: not finite
+        ok = _well_conditioned(_scaled(a)[0])
     a[~ok] = np.eye(n)
     p0 = np.linalg.inv(a)
     p0 = p0 * active[:, :, None] * active[:, None, :]  # pinned states carry no variance
@@ -215,6 +235,31 @@ def _safe_ratio(d, t):
     return np.where((t == 0.0) & (d == 0.0), 0.0, r)
 
 
+def _prepare(h, z_m, w, is_sat):
+    """Validate the arguments of :func:`mss` / :func:`classic_raim` and flatten the batch.
+
+    Returns ``batch``, ``h (B, M, n)``, ``z (B, M)``, ``w (B, M)`` and ``is_sat (M,)``, with
+    rows that have a non-finite innovation or geometry switched off (weight 0).
+    """
+    h = check_array("h", h, last=("M", "n"), finite=False)
+    m_rows, n = h.shape[-2:]
+    if n < 3:
+        raise ValueError(f"h must have shape (..., M, n) with n >= 3 states (E, N, U "
+                         f"first), got {h.shape}")
+    hdesc = f"h {shape_str((m_rows, n))}"
+    z = check_array("z_m", z_m, last=(m_rows,), finite=False, match=hdesc)
+    w = check_weights("w", w, last=(m_rows,), match=hdesc)
+    is_sat = check_mask("is_sat", is_sat, length=m_rows, match=hdesc)
+    batch = check_batch({"h": h.shape[:-2], "z_m": z.shape[:-1], "w": w.shape[:-1]})
+    h = np.broadcast_to(h, batch + (m_rows, n)).reshape(-1, m_rows, n)
+    z = np.broadcast_to(z, batch + (m_rows,)).reshape(-1, m_rows)
+    w = np.broadcast_to(w, batch + (m_rows,)).reshape(-1, m_rows)
+    w = np.where(np.isfinite(z) & np.all(np.isfinite(h), axis=-1), w, 0.0)
+    z = np.where(w > 0.0, z, 0.0)
+    h = np.where(np.isfinite(h), h, 0.0)
+    return batch, h, z, w, is_sat
+
+
 def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
     """Multiple solution separation: detection, identification, exclusion and PLs.
 
@@ -223,14 +268,26 @@ def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
     h : (..., M, n) local-frame geometry rows (see :func:`geometry_rows`); columns 0..2 are
         E, N, U.
     z_m : (..., M) innovations (measured minus predicted at the linearisation point, m).
-    w : (..., M) weights ``1 / sigma^2`` (1/m^2); 0 marks an unused row.
+    w : (..., M) weights ``1 / sigma^2`` (1/m^2), >= 0; 0 (or NaN) marks an unused row, as
+        does a non-finite innovation or geometry row.
     is_sat : (M,) bool, rows that are satellites (candidates for removal); the baro row is
         never removed (spec section 2: "sub-solution i: satellite i removed, baro kept").
-    p_fa, p_md : false-alarm and missed-detection probabilities.
+    p_fa, p_md : false-alarm and missed-detection probabilities, in (0, 1).
+
+    The batch shapes of ``h``, ``z_m`` and ``w`` broadcast together.
 
     Returns
     -------
-    MssResult
+    MssResult ; an epoch with singular geometry (the diagonally scaled normal matrix has a
+    reciprocal condition number below :data:`raimcore.lsq.RCOND_MIN`) or no redundancy is
+    ``"unavailable"``: NaN solution, separations and protection levels, no alarm. Its
+    neighbours in the batch are computed exactly as without it.
+
+    Raises
+    ------
+    ValueError naming the argument for bad shapes (``h`` not ``(..., M, n)`` with n >= 3,
+    ``z_m`` / ``w`` not ``(..., M)``, ``is_sat`` not ``(M,)``), negative or infinite weights
+    or probabilities outside (0, 1).
 
     Notes
     -----
@@ -254,16 +311,8 @@ def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
     """
     p_fa = check_probability("p_fa", p_fa)
     p_md = check_probability("p_md", p_md)
-    h = np.asarray(h, dtype=float)
-    batch = h.shape[:-2]
-    m_rows, n = h.shape[-2:]
-    h = h.reshape(-1, m_rows, n)
-    z = np.broadcast_to(np.asarray(z_m, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
-    w = np.broadcast_to(np.asarray(w, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
-    is_sat = np.asarray(is_sat, dtype=bool)
-    w = np.where(np.isfinite(z) & np.all(np.isfinite(h), axis=-1), w, 0.0)
-    z = np.where(w > 0.0, z, 0.0)
-    h = np.where(np.isfinite(h), h, 0.0)
+    batch, h, z, w, is_sat = _prepare(h, z_m, w, is_sat)
+    m_rows = h.shape[-2]
 
     p0, n_states, geom_ok = _normal_inverse(h, w)
     dx0 = np.einsum("bij,bmj,bm,bm->bi", p0, h, w, z)
@@ -450,18 +499,30 @@ def _pair_level(h, z, w, cand, m_sat, todo, p_fa):
     return pairs, passed, score, dx
 
 
-@lru_cache(maxsize=256)
 def lambda_detect(dof: int, p_fa: float, p_md: float) -> float:
     """Non-centrality the chi-square test detects with probability ``1 - p_md``.
 
     Solves ``ncx2.cdf(chi2.isf(p_fa, dof), dof, lam) = p_md`` for ``lam`` (Brown 1992;
-    Walter & Enge 1995 call ``sqrt(lam)`` the "pbias").
+    Walter & Enge 1995 call ``sqrt(lam)`` the "pbias"). ``0`` when ``p_fa + p_md >= 1``
+    (the test already detects a zero bias with probability ``1 - p_md``).
+
+    Raises
+    ------
+    ValueError for ``dof < 1`` or probabilities outside (0, 1).
     """
+    return _lambda_detect(check_int("dof", dof, 1), check_probability("p_fa", p_fa),
+                          check_probability("p_md", p_md))
+
+
+@lru_cache(maxsize=256)
+def _lambda_detect(dof: int, p_fa: float, p_md: float) -> float:
     t2 = stats.chi2.isf(p_fa, dof)
 
     def miss(lam):
         return stats.ncx2.cdf(t2, dof, lam) - p_md
 
+    if stats.chi2.cdf(t2, dof) <= p_md:  # 1 - p_fa <= p_md
+        return 0.0
     hi = 10.0
     while miss(hi) > 0.0:
         hi *= 2.0
@@ -475,11 +536,16 @@ def classic_raim(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
     ----------
     h, z_m, w, is_sat : as in :func:`mss` (a baro row, if weighted, is one more
         measurement but never a fault candidate).
-    p_fa, p_md : false-alarm and missed-detection probabilities.
+    p_fa, p_md : false-alarm and missed-detection probabilities, in (0, 1).
 
     Returns
     -------
-    ClassicResult
+    ClassicResult ; unavailable epochs (singular geometry or dof < 1, as in :func:`mss`)
+    have NaN ``sse``, threshold and protection levels and no alarm.
+
+    Raises
+    ------
+    ValueError as :func:`mss`.
 
     Notes
     -----
@@ -497,16 +563,7 @@ def classic_raim(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
     """
     p_fa = check_probability("p_fa", p_fa)
     p_md = check_probability("p_md", p_md)
-    h = np.asarray(h, dtype=float)
-    batch = h.shape[:-2]
-    m_rows, n = h.shape[-2:]
-    h = h.reshape(-1, m_rows, n)
-    z = np.broadcast_to(np.asarray(z_m, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
-    w = np.broadcast_to(np.asarray(w, dtype=float), batch + (m_rows,)).reshape(-1, m_rows)
-    is_sat = np.asarray(is_sat, dtype=bool)
-    w = np.where(np.isfinite(z) & np.all(np.isfinite(h), axis=-1), w, 0.0)
-    z = np.where(w > 0.0, z, 0.0)
-    h = np.where(np.isfinite(h), h, 0.0)
+    batch, h, z, w, is_sat = _prepare(h, z_m, w, is_sat)
 
     p0, n_states, geom_ok = _normal_inverse(h, w)
     dx0 = np.einsum("bij,bmj,bm,bm->bi", p0, h, w, z)
@@ -520,7 +577,7 @@ def classic_raim(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
     dof_safe = np.maximum(dof, 1)
     uniq = np.unique(dof_safe)  # a handful of small integers: one root-find each
     thr_u = stats.chi2.isf(p_fa, uniq)
-    lam_u = np.array([lambda_detect(int(d), p_fa, p_md) for d in uniq])
+    lam_u = np.array([_lambda_detect(int(d), p_fa, p_md) for d in uniq])
     pos = np.searchsorted(uniq, dof_safe)
     threshold = np.where(valid, thr_u[pos], np.nan)
     lam_det = np.where(valid, lam_u[pos], np.nan)
@@ -561,7 +618,12 @@ def classic_raim(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
 
 
 def availability(hpl_m, vpl_m, hal_m: float, val_m: float) -> np.ndarray:
-    """``True`` where both protection levels are finite and within the alert limits."""
+    """``True`` where both protection levels are finite and within the alert limits.
+
+    ``hal_m`` and ``val_m`` must be finite and > 0 (``ValueError`` otherwise).
+    """
+    hal_m = check_positive("hal_m", hal_m)
+    val_m = check_positive("val_m", val_m)
     hpl = np.asarray(hpl_m, dtype=float)
     vpl = np.asarray(vpl_m, dtype=float)
     with np.errstate(invalid="ignore"):

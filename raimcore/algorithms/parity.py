@@ -122,7 +122,7 @@ def parity_matrix(h, method: str = "potter") -> np.ndarray:
     non-finite entries.
     """
     check_choice("method", method, ("potter", "qr"))
-    h = check_array("h", h, ndim_min=2)
+    h = check_array("h", h, last=("m", "n"))
     _check_redundant(h)
     return _parity_matrix(h, method)[0]
 
@@ -163,7 +163,7 @@ def _check_dense(h, z, sigma_m):
 
     Returns ``h, z, sigma`` broadcast to one batch shape (sigma to ``(..., m)``).
     """
-    h = check_array("h", h, ndim_min=2)
+    h = check_array("h", h, last=("m", "n"))
     _check_redundant(h)
     m, n = h.shape[-2:]
     hdesc = f"h {shape_str((m, n))}"
@@ -256,7 +256,7 @@ def sse_test(h, z, sigma_m, p_fa: float):
     r = zw - np.einsum("...mi,...i->...m", hw, x)
     sse = np.where(ok, np.sum(r * r, axis=-1), np.nan)
     thr = stats.chi2.isf(p_fa, h.shape[-2] - h.shape[-1])
-    return sse, thr, ok & (sse >= thr)
+    return sse[()], thr, (ok & (sse >= thr))[()]
 
 
 @dataclass(frozen=True)
@@ -299,7 +299,7 @@ def _whitened_projector(h, w):
 
 def _check_masked(h, resid_m, weights, dof, *, h_name="h", resid_name="resid_m"):
     """Validate the masked form's arguments; returns them broadcast to one batch shape."""
-    h = check_array(h_name, h, ndim_min=2, finite=False)
+    h = check_array(h_name, h, last=("S", "n"), finite=False)
     s_n, n = h.shape[-2:]
     hdesc = f"{h_name} {shape_str((s_n, n))}"
     r = check_array(resid_name, resid_m, last=(s_n,), finite=False, match=hdesc)
@@ -400,7 +400,7 @@ def detection_probability(projector, bias_m, weights, dof, p_fa: float) -> np.nd
     ValueError naming the argument for bad shapes, weights, dof or p_fa.
     """
     p_fa = check_probability("p_fa", p_fa)
-    proj = check_array("projector", projector, ndim_min=2, finite=False)
+    proj = check_array("projector", projector, last=("S", "S"), finite=False)
     s_n = proj.shape[-1]
     if proj.shape[-2] != s_n:
         raise ValueError(f"projector must have shape (..., S, S), got {proj.shape}")

@@ -75,7 +75,8 @@ def main(argv=None) -> int:
     from app.scene import SkyScene
     from app.server import Dashboard
     from app.session import run_view, scene_run
-    from raimcore.scenario import load_scenario, run_scenario
+    from raimcore.pipeline import run_scenario
+from raimcore.scenario import load_scenario
 
     start = load_scenario(args.scenario)
     if args.algorithm:
@@ -85,8 +86,8 @@ def main(argv=None) -> int:
     (s,) = dash.wait_for_sessions(1)
     s.scheduler.wait_idle(60)
     client = s.client
-    n_ep = len(s.result.data.t_s)
-    print(f"scenario {s.scenario.name!r}: {n_ep} epochs, {len(s.result.data.sat_names)} "
+    n_ep = len(s.result.measurements.t_s)
+    print(f"scenario {s.scenario.name!r}: {n_ep} epochs, {len(s.result.measurements.sat_names)} "
           f"satellites, algorithm {s.scenario.algorithm}, panels {list(s.figures)}")
 
     # Incremental path: the real session, one control change at a time.
