@@ -182,12 +182,12 @@ class Scenario:
                                    choices=tuple(SYSTEMS), group="constellation")
     constellation: str = key("nominal", '"nominal" or the path of a YUMA almanac (GPS)',
                              kind="custom", parse=_parse_path_or_nominal,
-                             group="constellation")
+                             allowed_text='"nominal" or a file path', group="constellation")
     sats: tuple[str, ...] = key((), "satellites to use (empty: all of the systems)",
                                 kind="strings", group="constellation")
     rename: tuple[tuple[str, str], ...] = key(
         (), "rename satellites, old = new (to match a paper's PRNs)", kind="custom",
-        parse=_parse_rename, group="constellation")
+        parse=_parse_rename, allowed_text="table of satellite names", group="constellation")
     t_start_s: float = key(0.0, "constellation time at t = 0 (a recording: the start of "
                            "the cut)", unit="s", lo=0.0, hi=1e9, group="time")
     duration_s: float = key(100.0, "length of the run", unit="s", lo=0.0, hi=1e9,
@@ -240,16 +240,19 @@ class Scenario:
                               ui_hi=3600.0, ui_step=5.0, group="measurements")
     faults: tuple[Fault, ...] = key((), "injected faults: [[faults]] tables (sat, kind "
                                     "step|ramp, t0_s, t1_s, bias_m | rate_mps)",
-                                    kind="custom", parse=_parse_faults, group="faults")
+                                    kind="custom", parse=_parse_faults,
+                                    allowed_text="list of fault tables", group="faults")
     restrict: tuple[Restrict, ...] = key((), "windows tracking only some satellites: "
                                          "[[restrict]] tables (sats, t0_s, t1_s)",
                                          kind="custom", parse=_parse_restrict,
+                                         allowed_text="list of tables",
                                          group="measurements")
     baro: bool = key(False, "add a barometric altimeter", group="measurements")
     sigma_baro_m: float = key(50.0, "barometric altitude 1-sigma", unit="m", lo=0.0,
                               lo_open=True, hi=1.0e4, group="measurements")
     algorithm: str = key("parity", "integrity algorithm (raim list)", kind="custom",
-                         parse=_parse_algorithm, group="integrity")
+                         parse=_parse_algorithm, allowed_text="a registered algorithm",
+                         group="integrity")
     p_fa: float = key(1e-3, "false-alarm probability", lo=0.0, hi=1.0, lo_open=True,
                       hi_open=True, group="integrity")
     p_md: float = key(1e-3, "missed-detection probability", lo=0.0, hi=1.0, lo_open=True,
@@ -270,7 +273,7 @@ class Scenario:
     truth_ecef_m: tuple[float, ...] = key((), "true receiver position [x, y, z] of a "
                                           "recording (empty: the header position)",
                                           unit="m", kind="custom", parse=_parse_truth,
-                                          group="recording")
+                                          allowed_text="[] or [x, y, z]", group="recording")
     options: tuple[tuple[str, Any], ...] = ()
     notes: tuple[str, ...] = dataclasses.field(default=(), compare=False)
 

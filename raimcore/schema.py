@@ -136,6 +136,7 @@ class Key:
     ui_lo, ui_hi, ui_step : the dashboard control's usual range and step; a value outside
         widens the control, never clipped.
     parse : for ``custom`` keys, ``parse(name, value) -> value`` (raises SchemaError).
+    allowed_text : what a ``custom`` key allows, in words (for ``raim keys`` and the docs).
     """
 
     name: str
@@ -153,6 +154,7 @@ class Key:
     ui_hi: float | None = None
     ui_step: float | None = None
     parse: Callable[[str, Any], Any] | None = None
+    allowed_text: str = ""
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -198,6 +200,8 @@ class Key:
     def allowed(self) -> str:
         """What this key allows, in words (for messages, ``raim keys`` and the README)."""
         k = self.kind
+        if self.allowed_text:
+            return self.allowed_text
         if k == "float":
             return "number" + _interval(self.lo, self.hi, self.lo_open, self.hi_open, "")
         if k == "int":
