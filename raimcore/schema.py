@@ -105,15 +105,20 @@ def coerce_str(name: str, value, choices: Sequence[str] | None = None) -> str:
     return value
 
 
+def _num(x) -> str:
+    """A bound as typed: integers in full (4294967295, not 4.29497e+09)."""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
+
+
 def _interval(lo, hi, lo_open, hi_open, unit) -> str:
     u = f" {unit}" if unit and unit not in ("1",) else ""
     if lo is None and hi is None:
         return ""
     if hi is None:
-        return f" {'>' if lo_open else '>='} {lo:g}{u}"
+        return f" {'>' if lo_open else '>='} {_num(lo)}{u}"
     if lo is None:
-        return f" {'<' if hi_open else '<='} {hi:g}{u}"
-    return f" in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}{u}"
+        return f" {'<' if hi_open else '<='} {_num(hi)}{u}"
+    return f" in {'(' if lo_open else '['}{_num(lo)}, {_num(hi)}{')' if hi_open else ']'}{u}"
 
 
 @dataclass(frozen=True)

@@ -6,22 +6,23 @@ from scipy import stats
 
 from raimcore.algorithms.ekf import run_ekf
 from raimcore.algorithms.pf import ProcessModel
-from raimcore.scenario import build_epoch_data, load_scenario, run_scenario
+from raimcore.pipeline import run_scenario, simulate
+from raimcore.scenario import load_scenario
 
 
 def _runs(noise, n_runs, seed, duration_s=300):
-    d = build_epoch_data(load_scenario("seed002", noise=noise, faults=[],
-                                       duration_s=duration_s))
+    d, truth = simulate(load_scenario("seed002", noise=noise, faults=[],
+                                      duration_s=duration_s))
     rng = np.random.default_rng(seed)
-    rng_m = np.linalg.norm(d.pos_sv_ecef_m - d.pos_rx_true_ecef_m[:, None], axis=-1)
+    rng_m = np.linalg.norm(d.pos_sv_ecef_m - truth.pos_rx_ecef_m[:, None], axis=-1)
     clean = rng_m + 1234.5  # a constant receiver clock (m)
     pr = clean[None] + d.noise.sample(rng, (n_runs,) + clean.shape)
-    return d, pr
+    return d, truth, pr
 
 
 def test_nis_false_alarm_rate_matches_p_fa_under_gaussian_noise():
     """Gaussian noise, the filter's own model: innovations are white, NIS ~ chi2(m)."""
-    d, pr = _runs("gaussian", 20, 1)
+    d, _, pr = _runs("gaussian", 20, 1)
     # Truly static receiver and clock: no process noise in the data nor in the filter.
     model = ProcessModel("static", 1, q_pos_mps=0.0, q_clk_mps=0.0)
     p_fa = 0.01
@@ -37,7 +38,7 @@ def test_nis_false_alarm_rate_matches_p_fa_under_gaussian_noise():
 def test_heavy_tails_raise_the_ekf_false_alarm_rate():
     """Student-t noise (nu = 3): the nominal 1e-3 test false-alarms several times more
     often (spec: 2.6-5.2 % per epoch)."""
-    d, pr = _runs("student-t", 10, 2)
+    d, _, pr = _runs("student-t", 10, 2)
     r = run_ekf(d.pos_sv_ecef_m, pr, d.used, d.t_s, d.sys_idx, 1, d.noise.std_m,
                 ProcessModel(), 1e-3, exclude=False)
     rate = np.mean(r.alarm[:, 1:])
@@ -70,7 +71,7 @@ def test_per_satellite_sigma_equals_scalar_when_uniform_and_holds_p_fa_when_not(
     """R = diag(sigma_i^2): a uniform array gives the scalar filter exactly; with unequal
     noise levels (as a recording's elevation model), the per-satellite R keeps NIS at its
     chi-square false-alarm rate where one common sigma does not."""
-    d, pr = _runs("gaussian", 20, 3)
+    d, truth, pr = _runs("gaussian", 20, 3)
     model = ProcessModel("static", 1, q_pos_mps=0.0, q_clk_mps=0.0)
     sig = d.noise.std_m
     args = (d.pos_sv_ecef_m, None, d.used, d.t_s, d.sys_idx, 1)
@@ -80,7 +81,7 @@ def test_per_satellite_sigma_equals_scalar_when_uniform_and_holds_p_fa_when_not(
     np.testing.assert_allclose(a.nis, b.nis, rtol=1e-12)
     k_sat = np.array([1.0, 1.0, 2.0, 2.0, 4.0, 4.0])
     rng = np.random.default_rng(4)
-    rng_m = np.linalg.norm(d.pos_sv_ecef_m - d.pos_rx_true_ecef_m[:, None], axis=-1)
+    rng_m = np.linalg.norm(d.pos_sv_ecef_m - truth.pos_rx_ecef_m[:, None], axis=-1)
     pr_h = rng_m[None] + 1234.5 + sig * k_sat * rng.standard_normal((20,) + rng_m.shape)
     per_sat = run_ekf(*args[:1], pr_h, *args[2:], sig * np.broadcast_to(k_sat, d.pr_m.shape),
                       model, 0.01, exclude=False)

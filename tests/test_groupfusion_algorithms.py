@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from raimcore import algorithms
-from raimcore.scenario import load_scenario, run_scenario
+from raimcore.pipeline import run_scenario
+from raimcore.scenario import load_scenario
 
 
 @pytest.fixture(scope="module")
@@ -13,9 +14,9 @@ def gf_run():
 
 
 def test_gf_isolates_up_to_three_simultaneous_faults(gf_run):
-    out, data = gf_run.output, gf_run.data
-    truth = data.fault_bias_m != 0
-    exact = np.all(out.excluded == truth, axis=-1)
+    out, data = gf_run.output, gf_run.measurements
+    faulty = gf_run.truth.faulted
+    exact = np.all(out.excluded == faulty, axis=-1)
     t = data.t_s
     assert exact[t < 60].all()  # no fault: nothing excluded
     for lo, hi in ((60, 120), (120, 180), (180, 270)):  # one, two, three faults
@@ -25,17 +26,17 @@ def test_gf_isolates_up_to_three_simultaneous_faults(gf_run):
     assert np.all(mf[out.excluded] > np.repeat(thr, out.excluded.sum(axis=1)))
     assert np.allclose(np.nanmean(mf, axis=1) + 0.1, thr, equal_nan=True)
     # After exclusion the position is back near the truth.
-    err = np.linalg.norm(out.pos_after_ecef_m - data.pos_rx_true_ecef_m, axis=-1)
+    err = np.linalg.norm(out.pos_after_ecef_m - gf_run.truth.pos_rx_ecef_m, axis=-1)
     assert np.median(err[t >= 180]) < 150.0
 
 
 @pytest.mark.parametrize("name", ["rs", "qv"])
 def test_baselines_run_on_the_multi_fault_scenario(name):
     r = run_scenario(load_scenario("seed004-multi", algorithm=name, duration_s=130))
-    truth = r.data.fault_bias_m != 0
-    exact = np.all(r.output.excluded == truth, axis=-1)
-    assert exact[r.data.t_s < 60].all()
-    assert exact[(r.data.t_s >= 60) & (r.data.t_s < 120)].mean() > 0.5
+    exact = np.all(r.output.excluded == r.truth.faulted, axis=-1)
+    t = r.measurements.t_s
+    assert exact[t < 60].all()
+    assert exact[(t >= 60) & (t < 120)].mean() > 0.5
 
 
 def test_options_are_validated():
@@ -50,6 +51,5 @@ def test_options_are_validated():
 def test_uniform_weights_and_fewer_groups_still_work():
     r = run_scenario(load_scenario("seed004-multi", algorithm="gf", duration_s=100,
                                    gf_weights="uniform", gf_groups=200))
-    truth = r.data.fault_bias_m != 0
-    assert np.all(r.output.excluded == truth, axis=-1)[60:].mean() > 0.8
-    assert algorithms.get("gf").options["gf_groups"] == 0
+    assert np.all(r.output.excluded == r.truth.faulted, axis=-1)[60:].mean() > 0.8
+    assert algorithms.get("gf").defaults["gf_groups"] == 0

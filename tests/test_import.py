@@ -6,7 +6,8 @@ import sys
 
 def test_import_raimcore_does_not_import_gui_libraries():
     code = (
-        "import sys, raimcore, raimcore.scenario, raimcore.algorithms, raimcore.cli;"
+        "import sys, raimcore, raimcore.scenario, raimcore.pipeline, raimcore.algorithms,"
+        " raimcore.cli;"
         "raimcore.algorithms.names();"
         "bad = [m for m in ('viser', 'plotly', 'app') if m in sys.modules];"
         "print(','.join(bad))"

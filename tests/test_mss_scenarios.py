@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
 from raimcore import algorithms
 from raimcore.geometry import ecef_to_enu
-from raimcore.scenario import build_epoch_data, load_scenario, run_scenario
+from raimcore.pipeline import run_scenario, simulate
+from raimcore.scenario import load_scenario
 
 PAPER_SATS = ("G04", "G08", "G10", "G13", "G14")  # seed 001 fault case
 
@@ -35,13 +34,14 @@ def faulted(result):
 
 def test_registered_with_option():
     spec = algorithms.get("mss")
-    assert spec.options == {"mss_ident_rule": "unique"}
+    assert spec.defaults == {"mss_ident_rule": "unique"}
+    assert spec.option_keys["mss_ident_rule"].choices == ("unique", "rank")
     with pytest.raises(ValueError, match="mss_ident_rule"):
         run_scenario("seed001-fault", duration_s=5, mss_ident_rule="best")
 
 
 def test_paper_satellites_visible_through_the_fault_window():
-    data = build_epoch_data(load_scenario("seed001-flight"))
+    data, _ = simulate(load_scenario("seed001-flight"))
     window = (data.t_s >= 2000) & (data.t_s <= 3000)
     idx = [data.sat_names.index(s) for s in PAPER_SATS]
     assert np.all(data.used[np.ix_(window, idx)])
@@ -106,7 +106,7 @@ def test_fault_errors_against_paper_table_1(fault):
     """Error statistics in the fault window, beside the paper's Table 1 (see README)."""
     classic = run_scenario("seed001-fault", baro=False)
     f = faulted(fault)
-    truth = fault.data.pos_rx_true_ecef_m[f]
+    truth = fault.truth.pos_rx_ecef_m[f]
     err_baro = ecef_to_enu(fault.output.pos_after_ecef_m[f], truth)
     err_classic = ecef_to_enu(classic.output.pos_before_ecef_m[f], truth)
     std_baro, std_classic = err_baro.std(axis=0), err_classic.std(axis=0)
@@ -162,12 +162,12 @@ def test_fault_on_other_paper_satellites_both_rules(sat):
 
 def test_batched_run_equals_single_epoch_runs(fault):
     """The algorithm compacts the used satellites per batch: per-epoch runs must agree."""
-    data, spec = fault.data, algorithms.get("mss")
-    per_epoch = ("t_s", "pos_sv_ecef_m", "pr_m", "used", "az_rad", "el_rad", "sigma_m",
-                 "pos_rx_true_ecef_m", "vel_rx_true_ecef_mps", "fault_bias_m", "baro_alt_m")
+    data, spec = fault.measurements, algorithms.get("mss")
+    options = spec.resolve_options({"mss_ident_rule": "unique"})
     for e in (0, 1999, 2000, 2500, 2875, 3001):
-        one = dataclasses.replace(data, **{k: getattr(data, k)[e:e + 1] for k in per_epoch})
-        out = spec.run(one, {"mss_ident_rule": "unique"})
+        one = data.take_epochs([e])
+        assert one.n_epochs == 1 and one.baro_alt_m.shape == (1,)
+        out = spec.run(one, options)
         for key in ("hpl_m", "vpl_m", "hpl_classic_m", "vpl_nobaro_m"):
             np.testing.assert_allclose(out.columns[key][0], fault.output.columns[key][e],
                                        rtol=1e-9)

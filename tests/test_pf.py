@@ -9,7 +9,8 @@ from scipy import stats
 from raimcore.algorithms import pf, pf_llr
 from raimcore.lsq import wls
 from raimcore.measure.noise import Gaussian, StudentT
-from raimcore.scenario import build_epoch_data, load_scenario, run_scenario
+from raimcore.pipeline import run_scenario, simulate
+from raimcore.scenario import load_scenario
 
 ONE_CM = 0.01
 
@@ -54,7 +55,7 @@ def test_log_weights_are_normalised_and_neff_bounds():
 
 
 def test_bank_step_weights_normalised_and_resampling_rule():
-    d = build_epoch_data(load_scenario("seed002", noise="gaussian", faults=[]))
+    d, _ = simulate(load_scenario("seed002", noise="gaussian", faults=[]))
     model = pf.ProcessModel("static", 1)
     fix = pf.robust_fix(d.pos_sv_ecef_m[0], d.pr_m[:1], d.used[0], d.sys_idx, 1, d.noise)
     cloud = pf.initial_cloud(fix.pos_ecef_m, fix.clock_m, fix.cov_enu, 300, model,
@@ -74,7 +75,7 @@ def test_pf_update_agrees_with_least_squares_under_gaussian_noise():
     """One update of a Gaussian prior N(x_ls + d, c C_ls) by Gaussian pseudoranges has the
     posterior mean x_ls + d / (1 + c) (linear-Gaussian Bayes: the LSQ fix is the
     likelihood's mean, C_ls its covariance); many particles reproduce it."""
-    d = build_epoch_data(load_scenario("seed002", noise="gaussian", faults=[], seed=4))
+    d, _ = simulate(load_scenario("seed002", noise="gaussian", faults=[], seed=4))
     noise = Gaussian(3.0)
     sv, pr, used = d.pos_sv_ecef_m[0], d.pr_m[0], d.used[0]
     ls = wls(sv[None], pr[None], np.where(used, 1 / 9.0, 0.0)[None], d.sys_idx, 1)
@@ -95,8 +96,8 @@ def test_pf_update_agrees_with_least_squares_under_gaussian_noise():
 def test_pf_filter_tracks_a_static_receiver_like_batch_least_squares():
     """Gaussian noise, many particles: after 60 s the main filter sits within a metre of
     the least-squares fix of all epochs so far (both average the same data)."""
-    d = build_epoch_data(load_scenario("seed002", noise="gaussian", faults=[], seed=7,
-                                       duration_s=60))
+    d, _ = simulate(load_scenario("seed002", noise="gaussian", faults=[], seed=7,
+                                  duration_s=60))
     model = pf.ProcessModel("static", 1, q_pos_mps=0.01, q_clk_mps=0.01)
     run = pf.run_llr_bank(d.pos_sv_ecef_m, d.pr_m[None], d.used, d.t_s, d.sys_idx, 1,
                           d.noise, model, n_particles=3000, window=10, burn_in=10,
@@ -111,7 +112,7 @@ def test_pf_filter_tracks_a_static_receiver_like_batch_least_squares():
 
 
 def test_bank_vectorised_over_runs_gives_one_llr_per_satellite():
-    d = build_epoch_data(load_scenario("seed002", duration_s=80))
+    d, _ = simulate(load_scenario("seed002", duration_s=80))
     run = pf.run_llr_bank(d.pos_sv_ecef_m, np.stack([d.pr_m, d.pr_m]), d.used, d.t_s,
                           d.sys_idx, 1, d.noise, pf.ProcessModel(), n_particles=50,
                           window=10, burn_in=5, rng=np.random.default_rng(0))
@@ -196,9 +197,9 @@ def test_noise_models_give_the_likelihood():
 def test_fault_free_alarm_rate_matches_calibrated_tau():
     """Calibrate tau for p_fa_window = 5 %, then count alarms in independent fault-free
     runs at non-overlapping windows (every W-th armed epoch): binomial test."""
-    d = build_epoch_data(load_scenario("seed002", faults=[]))
+    d, truth = simulate(load_scenario("seed002", faults=[]))
     u = d.used[0]
-    sv, rx = d.pos_sv_ecef_m[0][u], d.pos_rx_true_ecef_m[0]
+    sv, rx = d.pos_sv_ecef_m[0][u], truth.pos_rx_ecef_m[0]
     model = pf.ProcessModel()
     cfg = dict(n_particles=100, window=30, burn_in=30, p_fa_window=0.05)
     cal = pf.calibrate_tau(sv, rx, d.sys_idx[u], 1, d.noise, model, n_runs=64, n_armed=60,
@@ -216,10 +217,10 @@ def test_time_correlated_noise_needs_a_threshold_calibrated_on_it():
     spread much more than under white noise. tau calibrated on the correlated model holds
     p_fa_window = 5 % (binomial test, one window per independent run); the white-noise tau
     does not (the mismatch behind PF-LLR's false alarms on real recordings)."""
-    d = build_epoch_data(load_scenario("seed002", faults=[], noise_corr_s=60.0))
-    white = build_epoch_data(load_scenario("seed002", faults=[])).noise
+    d, truth = simulate(load_scenario("seed002", faults=[], noise_corr_s=60.0))
+    white = simulate(load_scenario("seed002", faults=[]))[0].noise
     u = d.used[0]
-    sv, rx, sys_idx = d.pos_sv_ecef_m[0][u], d.pos_rx_true_ecef_m[0], d.sys_idx[u]
+    sv, rx, sys_idx = d.pos_sv_ecef_m[0][u], truth.pos_rx_ecef_m[0], d.sys_idx[u]
     model = pf.ProcessModel()
     cfg = dict(n_particles=100, window=30, burn_in=30, p_fa_window=0.05)
     tau_corr = pf.calibrate_tau(sv, rx, sys_idx, 1, d.noise, model, n_runs=64, n_armed=60,
@@ -239,9 +240,9 @@ def test_time_correlated_noise_needs_a_threshold_calibrated_on_it():
 def test_calibration_runs_at_the_scenario_epoch_interval():
     """The calibration filters its runs at the scenario's step (process noise and noise
     correlation depend on it), and the step is part of the cache key."""
-    d = build_epoch_data(load_scenario("seed002", faults=[], duration_s=3))
+    d, truth = simulate(load_scenario("seed002", faults=[], duration_s=3))
     u = d.used[0]
-    args = (d.pos_sv_ecef_m[0][u], d.pos_rx_true_ecef_m[0], d.sys_idx[u], 1, d.noise,
+    args = (d.pos_sv_ecef_m[0][u], truth.pos_rx_ecef_m[0], d.sys_idx[u], 1, d.noise,
             pf.ProcessModel())
     cfg = dict(n_particles=50, window=5, burn_in=5, p_fa_window=0.05, n_runs=4, n_armed=5)
     b1 = pf.calibrate_tau(*args, rng=np.random.default_rng(1), dt_s=1.0, **cfg).beta
@@ -258,10 +259,10 @@ def test_per_satellite_noise_scale_in_the_likelihood():
     from raimcore.algorithms.pf_llr import noise_scale
     from raimcore.measure.noise import make_noise, scaled
 
-    d = build_epoch_data(load_scenario("seed002", duration_s=2))
+    d, truth = simulate(load_scenario("seed002", duration_s=2))
     model = pf.ProcessModel("static", 1)
     x = np.random.default_rng(0).normal(size=(50, 4)) * 5.0
-    x[:, :3] += d.pos_rx_true_ecef_m[0]
+    x[:, :3] += truth.pos_rx_ecef_m[0]
     base = make_noise("gaussian", 3.0)
     a = pf.log_likelihood(x, d.pos_sv_ecef_m[0], d.pr_m[0], d.used[0], d.sys_idx,
                           scaled(base, np.full(6, 2.0)), model)
@@ -275,10 +276,10 @@ def test_chunked_likelihood_equals_one_batch(monkeypatch):
     """Agreement: the likelihood of a big bank computed in chunks of filters equals the
     one-batch computation and a per-filter loop."""
     rng = np.random.default_rng(8)
-    d = build_epoch_data(load_scenario("seed002", duration_s=2))
+    d, truth = simulate(load_scenario("seed002", duration_s=2))
     model = pf.ProcessModel()
     x = np.zeros((3, 7, 50, 4))
-    x[..., :3] = d.pos_rx_true_ecef_m[0] + rng.normal(0, 20, (3, 7, 50, 3))
+    x[..., :3] = truth.pos_rx_ecef_m[0] + rng.normal(0, 20, (3, 7, 50, 3))
     x[..., 3] = rng.normal(0, 20, (3, 7, 50))
     masks = np.vstack([np.ones(6, bool), ~np.eye(6, dtype=bool)])
     args = (d.pos_sv_ecef_m[1][None, None], d.pr_m[1][None, None], masks[None], d.sys_idx,

@@ -9,8 +9,8 @@ from raimcore import algorithms
 from raimcore.cli import main
 from raimcore.geometry import ecef_to_enu
 from raimcore.measure.faults import Fault
-from raimcore.scenario import from_dict, load_scenario, run_scenario
-from raimcore.sky.recording import recording_scenario
+from raimcore.pipeline import run_scenario
+from raimcore.scenario import from_dict, load_scenario, recording_scenario
 from raimcore.sky.rinex import read_nav, read_obs
 from raimcore.sky.spp import spp
 
@@ -98,9 +98,10 @@ def test_window_step_truth_and_round_trip(esbc):
                            systems=["BDS"], truth_ecef_m=[3582105.0, 532589.0, 5232754.0])
     assert from_dict(s.to_dict()) == s
     r = run_scenario(s)
-    assert r.data.t_s[0] == 0.0 and r.data.t_s[-1] == 1200.0 and len(r.data.t_s) == 21
-    assert all(n.startswith("C") for n in r.data.sat_names)
-    np.testing.assert_allclose(r.data.pos_rx_true_ecef_m[0], s.truth_ecef_m)
+    m = r.measurements
+    assert m.t_s[0] == 0.0 and m.t_s[-1] == 1200.0 and len(m.t_s) == 21
+    assert all(n.startswith("C") for n in m.sat_names)
+    np.testing.assert_allclose(r.truth.pos_rx_ecef_m[0], s.truth_ecef_m)
     with pytest.raises(ValueError, match="select no epoch"):
         run_scenario(s.replace(t_start_s=1e5))
 
@@ -118,8 +119,8 @@ def test_satellite_without_ephemeris_left_out_with_a_note(esbc, tmp_path):
     nav = tmp_path / "nav_without_g05.rnx"
     nav.write_text("\n".join(out) + "\n")
     r = run_scenario(recording_scenario(esbc[0], str(nav)))
-    assert "G05" not in r.data.sat_names
-    assert any("G05" in n and "left out" in n for n in r.data.notes)
+    assert "G05" not in r.measurements.sat_names
+    assert any("G05" in n and "left out" in n for n in r.measurements.notes)
     with pytest.raises(ValueError, match="G05"):
         run_scenario(recording_scenario(esbc[0], str(nav), faults=[Fault("G05", "step",
                                                                          bias_m=50.0)]))
@@ -174,12 +175,12 @@ def test_real_errors_are_time_correlated_and_pf_llr_needs_that_in_its_threshold(
     correlated over 30 s. PF-LLR calibrated on white noise false-alarms at most armed
     epochs; calibrated with the measured correlation time it holds, and a slow ramp is
     still caught and isolated."""
-    from raimcore.scenario import build_epoch_data
-    from raimcore.sky.recording import error_statistics
+    from raimcore.measure import error_statistics, measure
+    from raimcore.sky.recording import recording_sky
 
     s = recording_scenario(*esbc, algorithm="pf-llr")
-    data = build_epoch_data(s)
-    fit = error_statistics(data)
+    data, truth = measure(recording_sky(s), s)
+    fit = error_statistics(data, truth)
     print(f"ESBC errors: sigma {fit.sigma_m:.2f} m, rho {fit.rho:.2f} over {fit.dt_s:g} s, "
           f"corr {fit.corr_s:.0f} s")
     assert 0.2 < fit.sigma_m < 2.0 and fit.rho > 0.5 and fit.dt_s == 30.0

@@ -10,7 +10,8 @@ from raimcore.algorithms.base import (
     STATUS_OK,
     STATUS_UNAVAILABLE,
 )
-from raimcore.scenario import load_scenario, run_scenario
+from raimcore.pipeline import run_scenario
+from raimcore.scenario import load_scenario
 
 STATUSES = {STATUS_OK, STATUS_NO_ISOLATION, STATUS_UNAVAILABLE, STATUS_NOT_ARMED}
 
@@ -27,7 +28,7 @@ def test_algorithm_contract_on_a_short_scenario(name):
     ok = t["status"] != STATUS_UNAVAILABLE
     assert np.all(np.isfinite(t["hpe_before_m"][ok]))
     # Unused satellites are never excluded.
-    assert not np.any(r.output.excluded & ~r.data.used)
+    assert not np.any(r.output.excluded & ~r.measurements.used)
 
 
 @pytest.mark.parametrize("name", algorithms.names())
@@ -38,6 +39,9 @@ def test_algorithm_reports_unavailable_with_too_few_satellites(name):
     window = (t["t_s"] >= 10) & (t["t_s"] < 20)
     assert np.all(t["status"][window] == STATUS_UNAVAILABLE)
     assert not t["alarm"][window].any()
+    # Unavailable epochs carry no position (the pipeline blanks them).
+    assert np.all(np.isnan(t["hpe_before_m"][window]))
+    assert np.all(np.isnan(t["hpe_after_m"][window]))
 
 
 def test_unknown_algorithm_lists_the_registered_ones():

@@ -7,7 +7,8 @@ import pytest
 from scipy import stats
 
 from raimcore.measure.faults import Fault
-from raimcore.scenario import list_scenarios, load_scenario, parse_value, run_scenario
+from raimcore.pipeline import run_scenario
+from raimcore.scenario import list_scenarios, load_scenario, parse_value
 
 
 def test_named_scenarios_listed():
@@ -107,23 +108,42 @@ def test_toml_file_and_overrides(tmp_path):
                  't0_s = 0\n')
     r = run_scenario(str(p), seed=1)
     assert r.scenario.name == "mine" and len(r.table) == 11
-    assert r.data.systems == ("GPS", "BDS")
+    assert r.measurements.systems == ("GPS", "BDS")
     assert set(r.table["faulty_truth"]) <= {"C21", ""}
     assert np.all(r.table["dof"] >= 1)
 
 
 @pytest.mark.parametrize("over, message", [
     ({"sigma": 3}, "unknown scenario key 'sigma'"),
-    ({"p_fa": 2}, "p_fa must be a probability"),
+    ({"p_fa": 2}, r"p_fa must be in \(0, 1\)"),
     ({"algorithm": "nope"}, "algorithm must be one of"),
     ({"trajectory": "orbit"}, "trajectory must be one of"),
-    ({"faults": [{"sat": "G10", "kind": "step", "bias": 5}]}, "unknown fault key"),
-    ({"sats": ["G99"]}, "unknown satellite"),
+    ({"faults": [{"sat": "G10", "kind": "step", "bias": 5}]}, r"unknown key\(s\) bias"),
+    ({"sats": ["G99"]}, "G99 not in the nominal GPS constellation"),
     ({"seed": -1}, "seed must be an integer"),
+    # Stricter validation: bools are not numbers, seeds are 32-bit, options and
+    # satellites must fit the chosen algorithm and systems, recording keys need "rinex".
+    ({"seed": 2**32}, "seed must be an integer"),
+    ({"seed": 1.5}, "seed must be an integer"),
+    ({"seed": True}, "seed must be an integer"),
+    ({"sigma_m": True}, "sigma_m must be a number"),
+    ({"algorithm": "pf-llr", "max_exclusions": 2},
+     "option 'max_exclusions' does not belong to algorithm 'pf-llr'"),
+    ({"sats": ["C21"]}, "satellite 'C21' is not of the chosen systems"),
+    ({"obs": "x.obs"}, "apply to recordings only"),
 ])
 def test_bad_scenario_input_is_named(over, message):
     with pytest.raises(ValueError, match=message):
         run_scenario(load_scenario("default", **over))
+
+
+def test_replace_algorithm_drops_the_old_algorithms_options():
+    s = load_scenario("default", max_exclusions=2)
+    assert s.option("max_exclusions") == 2
+    t = s.replace(algorithm="pf-llr")
+    assert t.algorithm == "pf-llr" and t.option("max_exclusions") is None
+    with pytest.raises(ValueError, match="does not belong to algorithm 'pf-llr'"):
+        s.replace(algorithm="pf-llr", max_exclusions=2)
 
 
 def test_unknown_scenario_and_missing_file():

@@ -3,7 +3,10 @@
 import numpy as np
 import pytest
 
-from raimcore.scenario import in_fault_memory, load_scenario, run_scenario
+from raimcore.geometry import ecef_to_enu
+from raimcore.pipeline import run_scenario
+from raimcore.scenario import load_scenario
+from raimcore.scoring import in_fault_memory
 
 SEEDS = (0, 1, 2, 3, 4)
 
@@ -59,7 +62,10 @@ def test_summary_leaves_the_window_after_a_fault_out_of_false_alarms(runs):
     assert sm["fault_memory_epochs"] == 29
     assert sm["false_alarm_rate"] == 0.0
     # A memoryless algorithm (EKF) counts every epoch after the fault as fault-free.
-    assert "fault_memory_epochs" not in runs["ekf", 0].summary
+    ekf = runs["ekf", 0].summary
+    assert ekf["fault_memory_epochs"] == 0
+    n = ekf["epochs"] - ekf["faulted_epochs"]
+    assert ekf["false_alarm_n"] == n and sm["false_alarm_n"] == n - 29
 
 
 def test_in_fault_memory():
@@ -95,9 +101,10 @@ def test_particle_cloud_panel_follows_the_time_slider(runs):
     from app.session import run_view
 
     r = runs["pf-llr", 0]
-    enu = r.output.extras["particles_enu_m"]
+    cloud = r.output.extras["particles_ecef_m"]
     w = r.output.extras["particle_weight"]
-    assert enu.shape == (len(r.table), 100, 3)  # N = 100 <= 200 kept
+    assert cloud.shape == (len(r.table), 100, 3)  # N = 100 <= 200 kept
+    enu = ecef_to_enu(cloud, r.truth.pos_rx_ecef_m[:, None, :])
     np.testing.assert_allclose(np.nansum(w, axis=1)[1:], 1.0)
     mean = np.einsum("ek,eki->ei", w[60:], enu[60:])
     hpe = np.asarray(r.table["hpe_before_m"], float)[60:]

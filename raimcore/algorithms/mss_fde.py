@@ -58,7 +58,7 @@ EQUATIONS = r"""
 #: Options (scenario keys) of solution separation.
 OPTIONS = (
     option("mss_ident_rule", "choice", "unique", "identification rule: 'unique' (the "
-           "paper's: exactly one sub-solution passes) or 'ranking' (the smallest normalised "
+           "paper's: exactly one sub-solution passes) or 'rank' (the smallest normalised "
            "sub-sub statistic)", choices=IDENT_RULES),
 )
 

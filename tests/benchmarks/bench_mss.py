@@ -8,14 +8,13 @@ Run from the repository root::
    :func:`raimcore.algorithms.mss.classic_raim`, with and without baro) on the same random
    geometries, batched vs called once per epoch.
 2. Algorithm: the registered ``mss`` algorithm (WLS linearisation + kernels) on the
-   ``seed001-flight`` data, all epochs at once vs one single-epoch ``EpochData`` at a time.
+   ``seed001-flight`` data, all epochs at once vs one single-epoch ``Measurements`` at a time.
 Both in the same process; prints epochs/s of each, the ratio, and whether the PLs agree.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -84,19 +83,17 @@ def main() -> None:
 
 
 def epoch_slice(data, e):
-    """A single-epoch ``EpochData`` (every per-epoch array cut to ``[e:e+1]``)."""
-    per_epoch = ("t_s", "pos_sv_ecef_m", "pr_m", "used", "az_rad", "el_rad", "sigma_m",
-                 "pos_rx_true_ecef_m", "vel_rx_true_ecef_mps", "fault_bias_m", "baro_alt_m")
-    return dataclasses.replace(data, **{k: getattr(data, k)[e:e + 1] for k in per_epoch
-                                        if getattr(data, k) is not None})
+    """A single-epoch ``Measurements`` (every per-epoch array cut to ``[e:e+1]``)."""
+    return data.take_epochs([e])
 
 
 def bench_algorithm(repeat: int, n_loop: int = 300) -> None:
     from raimcore import algorithms
-    from raimcore.scenario import build_epoch_data, load_scenario
+    from raimcore.pipeline import simulate
+    from raimcore.scenario import load_scenario
 
     scen = load_scenario("seed001-flight")
-    data = build_epoch_data(scen)
+    data, _ = simulate(scen)
     spec = algorithms.get("mss")
     opts = scen.algorithm_options()
     best_batch = best_loop = np.inf

@@ -9,7 +9,6 @@ Run: ``python tests/benchmarks/bench_parity.py`` (from the repository root).
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -18,9 +17,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from raimcore.algorithms.parity_fde import run  # noqa: E402
+from raimcore.algorithms.parity_fde import SPEC, run  # noqa: E402
 from raimcore.measure.faults import Fault  # noqa: E402
-from raimcore.scenario import build_epoch_data, load_scenario  # noqa: E402
+from raimcore.pipeline import simulate  # noqa: E402
+from raimcore.scenario import load_scenario  # noqa: E402
 
 SATS = ["G02", "G05", "G06", "G09", "G10", "G15", "G20", "C02", "C21", "C28"]
 
@@ -32,18 +32,14 @@ def make_data(n_epochs: int):
                       sigma_m=3.0, mask_deg=0.0).with_faults(
         Fault("G10", "step", t0_s=dur / 2, bias_m=60.0))
     s = s.replace(sats=SATS)
-    data = build_epoch_data(s)
+    data, _ = simulate(s)
     if not data.used.all():
         raise RuntimeError("benchmark geometry lost a satellite; pick others")
     return data
 
 
 def epoch(data, e):
-    sl = slice(e, e + 1)
-    arrays = {f.name: getattr(data, f.name)[sl] for f in dataclasses.fields(data)
-              if isinstance(getattr(data, f.name), np.ndarray) and f.name not in ("sys_idx",)
-              and getattr(data, f.name).shape[:1] == data.t_s.shape}
-    return dataclasses.replace(data, **arrays)
+    return data.take_epochs([e])
 
 
 def best_of(fn, repeats: int) -> float:
@@ -57,7 +53,7 @@ def best_of(fn, repeats: int) -> float:
 
 def bench(n_epochs: int, loop_epochs: int) -> None:
     data = make_data(n_epochs)
-    opts = {"max_exclusions": 1}
+    opts = SPEC.resolve_options({"max_exclusions": 1})
     out = run(data, opts)  # warm up
     # Best of several repeats for both paths: the machine is shared, minima are stable.
     t_batch = best_of(lambda: run(data, opts), 5)

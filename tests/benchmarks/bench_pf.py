@@ -18,12 +18,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from raimcore.algorithms import pf  # noqa: E402
-from raimcore.scenario import build_epoch_data, load_scenario  # noqa: E402
+from raimcore.pipeline import simulate  # noqa: E402
+from raimcore.scenario import load_scenario  # noqa: E402
 from tests.benchmarks.bench_parity import best_of  # noqa: E402
 
 
 def setup(n_particles: int):
-    d = build_epoch_data(load_scenario("seed002"))
+    d, _ = simulate(load_scenario("seed002"))
     model = pf.ProcessModel()
     fix = pf.robust_fix(d.pos_sv_ecef_m[0], d.pr_m[:1], d.used[0], d.sys_idx, 1, d.noise)
     s_n = d.n_sats

@@ -3,9 +3,9 @@
 The 2-hour, 30-s RINEX 3.05 mixed file of ESBC (../shared/data, GPS + BDS, 240 epochs) and
 its mixed navigation file. The batched path reads both files, corrects every epoch at once
 (:func:`raimcore.sky.spp.correct`, through the recording loader), solves all epochs
-(:func:`raimcore.sky.spp.solve`) and runs the parity FDE on the recording's EpochData.
+(:func:`raimcore.sky.spp.solve`) and runs the parity FDE on the recording's Measurements.
 The baseline reads the files once, then runs the same functions epoch by epoch
-(one-epoch ObsFile slices, one-epoch EpochData). Prints epochs/s of both and the ratio.
+(one-epoch ObsFile slices, one-epoch Measurements). Prints epochs/s of both and the ratio.
 
 Run: ``python tests/benchmarks/bench_rinex.py`` (from the repository root).
 """
@@ -22,27 +22,25 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from raimcore.algorithms.parity_fde import run  # noqa: E402
+from raimcore.algorithms.parity_fde import SPEC, run  # noqa: E402
+from raimcore.measure import measure  # noqa: E402
+from raimcore.scenario import recording_scenario  # noqa: E402
 from raimcore.sky import recording  # noqa: E402
-from raimcore.sky.recording import (  # noqa: E402
-    load_recording,
-    recording_epoch_data,
-    recording_scenario,
-)
+from raimcore.sky.recording import load_recording, recording_sky  # noqa: E402
 from raimcore.sky.rinex import read_nav, read_obs  # noqa: E402
 from raimcore.sky.spp import correct, solve  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 OBS = DATA / "ESBC00DNK_R_20201770000_02H_30S_MO.rnx"
 NAV = DATA / "ESBC00DNK_R_20201770000_01D_MN.rnx"
-OPTS = {"max_exclusions": 1}
+OPTS = SPEC.resolve_options({"max_exclusions": 1})
 
 
 def batched():
     recording._read_obs.cache_clear()  # time the reading too, not the cache
     recording._corrected.cache_clear()
     s = recording_scenario(str(OBS), str(NAV))
-    data = recording_epoch_data(s)  # reads, corrects every epoch
+    data, _ = measure(recording_sky(s), s)  # reads, corrects every epoch
     sol = solve(load_recording(s.obs, s.nav, s.systems, s.signals))  # SPP (cached reading)
     out = run(data, OPTS)
     return sol, out
@@ -55,15 +53,13 @@ def epoch_slice(obs, e):
 
 
 def data_slice(data, e):
-    arrays = {f.name: getattr(data, f.name)[e:e + 1] for f in dataclasses.fields(data)
-              if isinstance(getattr(data, f.name), np.ndarray) and f.name != "sys_idx"
-              and getattr(data, f.name).shape[:1] == data.t_s.shape}
-    return dataclasses.replace(data, **arrays)
+    return data.take_epochs([e])
 
 
 def per_epoch():
     obs, nav = read_obs(OBS), read_nav(NAV)
-    data = recording_epoch_data(recording_scenario(str(OBS), str(NAV)))
+    s = recording_scenario(str(OBS), str(NAV))
+    data, _ = measure(recording_sky(s), s)
     pos = []
     for e in range(len(obs.t_gps_s)):
         corr = correct(epoch_slice(obs, e), nav)
