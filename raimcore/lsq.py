@@ -44,17 +44,27 @@ def _scaled(n):
 def _well_conditioned(ns, strict: bool = True):
     """Conditioning test of a unit-diagonal symmetric matrix (see :data:`RCOND_MIN`).
 
-    ``strict``: eigenvalue ratio; otherwise the determinant (cheaper, and since the
-    eigenvalues of a unit-diagonal n x n matrix sum to n, ``det > RCOND_MIN`` still bounds
-    lambda_min from below; it may call a merely ill-conditioned matrix singular, never the
-    reverse by more than a factor ~e n).
+    The eigenvalues of a unit-diagonal n x n positive semi-definite matrix sum to n, so
+    the product of all but the smallest is below e and ``det > t`` implies
+    ``lambda_min > t / e`` and ``lambda_min / lambda_max > t / (e n)``.
+
+    ``strict``: the eigenvalue ratio ``lambda_min / lambda_max > RCOND_MIN``. It is decided
+    by the determinant where ``det > 1e-6`` (which guarantees the ratio, for any n below
+    1e5) and by ``eigvalsh`` only for the remaining few, so the result is exact at the cost
+    of a determinant. Not strict: ``det > RCOND_MIN`` (cheaper still; may call a merely
+    ill-conditioned matrix singular, and accepts a ratio down to ``RCOND_MIN / (e n)``).
     """
     finite = np.all(np.isfinite(ns), axis=(-2, -1))
     ns = np.where(finite[..., None, None], ns, np.eye(ns.shape[-1]))
-    if strict:
-        eig = np.linalg.eigvalsh(ns)
-        return finite & (eig[..., 0] > RCOND_MIN * eig[..., -1])
-    return finite & (np.linalg.det(ns) > RCOND_MIN)
+    det = np.linalg.det(ns)
+    if not strict:
+        return finite & (det > RCOND_MIN)
+    ok = np.array(finite & (det > 1e-6))
+    unsure = finite & ~ok
+    if np.any(unsure):
+        eig = np.linalg.eigvalsh(ns[unsure])
+        ok[unsure] = eig[..., 0] > RCOND_MIN * eig[..., -1]
+    return ok
 
 
 @dataclass(frozen=True)
