@@ -1,38 +1,52 @@
 """One browser tab = one :class:`Session`: its own controls, 3D scene, run and worker.
 
-Every control change edits the session's :class:`~raimcore.scenario.Scenario` and submits
-a recompute to the session's :class:`~app.scheduler.CoalescingScheduler` (never two at
-once; a burst of slider moves ends on the last value). A recompute runs the scenario
-through :func:`raimcore.scenario.run_scenario`, rebuilds the panels the run calls for (the
-panel registry, :mod:`app.panels`), the teaching text and the verdict, and updates the 3D
-scene. Moving the time slider only moves the scene and the panels' time markers.
+The session's :class:`~raimcore.scenario.Scenario` is the truth; the controls show it.
+Every control is made from its key's declaration (:mod:`app.controls`), and a user's entry
+edits exactly that key: checked by the schema (a refused entry leaves the scenario and the
+control at the last valid value and says why in one line), then a recompute is submitted
+to the session's :class:`~app.scheduler.CoalescingScheduler` (never two at once; a burst of
+slider moves ends on the last value). A control the user did not move never rewrites its
+value, so touching a control without changing it leaves the scenario identical.
+
+A recompute runs the scenario through :func:`raimcore.pipeline.run_scenario`, rebuilds the
+panels the run calls for (the panel registry, :mod:`app.panels`), the teaching text and
+the verdict (from the run's :class:`~raimcore.scoring.Summary`), and updates the 3D scene.
+Moving the time slider only moves the scene and the panels' time markers.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import html
 import io
+import logging
 import math
 import shutil
 import tempfile
 import threading
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+import raimcore
 from raimcore import algorithms
 from raimcore.geometry import ecef_to_enu
 from raimcore.measure.faults import Fault
 from raimcore.pipeline import ScenarioResult
 from raimcore.pipeline import run_scenario as _run_scenario
-from raimcore.scenario import Scenario, list_scenarios, load_scenario
+from raimcore.scenario import Scenario, list_scenarios, load_scenario, scenario_keys
+from raimcore.schema import SchemaError
 
 from . import panels, teaching
+from .controls import FAULT_KEYS, KeyControl
 from .figures import PanelFigure, RunView
 from .scene import SceneRun, SkyScene
+
+log = logging.getLogger(__name__)
 
 NO_FAULT = "(no fault)"
 NO_OUTPUT = "(none)"
@@ -40,7 +54,12 @@ PLAY_SPEEDS = ("1x", "5x", "20x", "60x")
 PLAY_FPS = 8.0
 PLOT_PANEL_WIDTH = 500
 RESULT_CACHE_SIZE = 8  # recent runs kept per session: going back to a setting is instant
-
+#: The scenario keys the dashboard shows, with their labels (unit from the key).
+SCENARIO_CONTROLS = (("sigma_m", "Noise sigma"), ("noise_corr_s", "Noise correlation"),
+                     ("p_fa", "P_fa"), ("mask_deg", "Elevation mask"), ("seed", "Random seed"))
+#: The fault editor's keyed controls, with their labels.
+FAULT_CONTROLS = (("kind", "Type"), ("bias_m", "Bias"), ("rate_mps", "Ramp rate"),
+                  ("t0_s", "Fault start"), ("t1_s", "Fault end"))
 
 def run_view(result: ScenarioResult) -> RunView:
     """The figures' view of a scenario result."""
@@ -118,7 +137,8 @@ class Session:
         self._fault_index = 0 if scenario.faults else -1
         self._play_stop = threading.Event()
         self._play_thread: threading.Thread | None = None
-        self._option_handles: dict[str, object] = {}
+        self.option_controls: dict[str, KeyControl] = {}
+        self._edit_lock = threading.RLock()  # one edit of the scenario at a time
         self._cache: OrderedDict[str, ScenarioResult] = OrderedDict()
         self._upload_dir: str | None = None
         self.scene = SkyScene(client.scene)
@@ -129,34 +149,46 @@ class Session:
     def _build_gui(self) -> None:
         gui = self.gui
         s = self.scenario
+        keys = scenario_keys()
         self.status = gui.add_markdown("**Starting...**")
         self.verdict_md = gui.add_markdown("")
+        self.controls: dict[str, KeyControl] = {}
         with gui.add_folder("Scenario"):
             names = list(self.presets) or [s.name]
             self.preset = gui.add_dropdown("Preset", names,
                                            initial_value=s.name if s.name in names
                                            else names[0])
+            self._preset_name = self.preset.value
             self.algorithm = gui.add_dropdown("Algorithm", algorithms.names(),
-                                              initial_value=s.algorithm)
-            self.sigma = gui.add_slider("Noise sigma (m)", 0.1, 50.0, 0.1, s.sigma_m)
-            self.noise_corr = gui.add_slider(
-                "Noise correlation (s)", 0.0, max(3600.0, s.noise_corr_s), 5.0, s.noise_corr_s,
-                hint="correlation time of the noise (first-order Gauss-Markov); 0 = white. "
-                     "On a recording: the assumed correlation of the real errors")
-            self.p_fa = gui.add_number("P_fa", s.p_fa, min=1e-9, max=0.5, step=1e-6)
-            self.mask = gui.add_slider("Elevation mask (deg)", 0.0, 40.0, 1.0, s.mask_deg)
-            self.seed = gui.add_number("Random seed", int(s.seed), min=0, max=2**31 - 1,
-                                       step=1)
+                                              initial_value=s.algorithm,
+                                              hint=keys["algorithm"].help)
+            for name, title in SCENARIO_CONTROLS:
+                self.controls[name] = KeyControl(gui, keys[name], getattr(s, name),
+                                                 title=title)
+        c = self.controls
+        self.sigma, self.noise_corr, self.p_fa = (c["sigma_m"].handle, c["noise_corr_s"].handle,
+                                                  c["p_fa"].handle)
+        self.mask, self.seed = c["mask_deg"].handle, c["seed"].handle
         self.options_folder = gui.add_folder("Algorithm options", expand_by_default=False)
+        t_end = float(s.duration_s)
+        self.fault_controls: dict[str, KeyControl] = {}
         with gui.add_folder("Faults"):
             self.fault_pick = gui.add_dropdown("Fault to edit", [NO_FAULT])
             self.fault_sat = gui.add_dropdown("Satellite", ["-"])
-            self.fault_kind = gui.add_dropdown("Type", ["step", "ramp"])
-            self.fault_bias = gui.add_slider("Bias (m)", 0.0, 500.0, 1.0, 100.0)
-            self.fault_rate = gui.add_slider("Ramp rate (m/s)", 0.0, 20.0, 0.1, 2.0)
-            t_end = float(s.duration_s)
-            self.fault_t0 = gui.add_slider("Fault start (s)", 0.0, t_end, s.step_s, 0.0)
-            self.fault_t1 = gui.add_slider("Fault end (s)", 0.0, t_end, s.step_s, t_end)
+            fc = self.fault_controls
+            for name, title in FAULT_CONTROLS:
+                key = FAULT_KEYS[name]
+                extra = {}
+                if name == "t1_s":  # "until the end" is shown at the slider's right end
+                    extra = dict(encode=self._t1_shown, decode=self._t1_of)
+                if name in ("t0_s", "t1_s"):  # sliders over the run (a key without range)
+                    key = dataclasses.replace(key, ui_lo=0.0, ui_hi=t_end,
+                                              ui_step=float(s.step_s))
+                    extra["control"] = "slider"
+                fc[name] = KeyControl(gui, key, key.default, title=title, **extra)
+            self.fault_kind, self.fault_bias, self.fault_rate = (
+                fc["kind"].handle, fc["bias_m"].handle, fc["rate_mps"].handle)
+            self.fault_t0, self.fault_t1 = fc["t0_s"].handle, fc["t1_s"].handle
             self.fault_add = gui.add_button("Add fault")
             self.fault_remove = gui.add_button("Remove fault")
         with gui.add_folder("Time"):
@@ -190,13 +222,15 @@ class Session:
         gui.main_panel.dock_left()
         gui.main_panel.set_width(340)
 
-        for h in (self.sigma, self.noise_corr, self.p_fa, self.mask, self.seed):
-            h.on_update(lambda _e: self._on_control())
+        for name, ctl in self.controls.items():
+            ctl.handle.on_update(lambda _e, c=ctl, n=name: self._on_key(
+                c, lambda v: self.scenario.replace(**{n: v})))
         self.preset.on_update(lambda _e: self._on_preset())
         self.algorithm.on_update(lambda _e: self._on_algorithm())
-        for h in (self.fault_sat, self.fault_kind, self.fault_bias, self.fault_rate,
-                  self.fault_t0, self.fault_t1):
-            h.on_update(lambda _e: self._on_fault_edit())
+        for name, ctl in self.fault_controls.items():
+            ctl.handle.on_update(lambda _e, c=ctl, n=name: self._on_key(
+                c, lambda v: self._with_fault_field(n, v), after=self._sync_fault_controls))
+        self.fault_sat.on_update(lambda _e: self._on_fault_sat())
         self.fault_pick.on_update(lambda _e: self._on_fault_pick())
         self.fault_add.on_click(lambda _e: self._on_fault_add())
         self.fault_remove.on_click(lambda _e: self._on_fault_remove())
@@ -215,28 +249,26 @@ class Session:
         self._sync_fault_controls()
 
     def _build_option_controls(self) -> None:
-        """One control per option of the chosen algorithm (``AlgorithmSpec.options``)."""
-        for h in self._option_handles.values():
-            h.remove()
-        self._option_handles = {}
-        spec = algorithms.get(self.algorithm.value)
-        current = {**spec.defaults, **{k: v for k, v in self.scenario.options}}
+        """One control per option of the scenario's algorithm (``AlgorithmSpec.options``),
+        each made from the option's key."""
+        for ctl in self.option_controls.values():
+            ctl.remove()
+        self.option_controls = {}
+        spec = algorithms.get(self.scenario.algorithm)
+        current = self.scenario.algorithm_options()
         with self.options_folder:
             for k in spec.options:
-                value = current.get(k.name, k.default)
-                if k.kind == "bool":
-                    h = self.gui.add_checkbox(k.name, bool(value), hint=k.help)
-                elif k.kind == "choice":
-                    h = self.gui.add_dropdown(k.name, k.choices, initial_value=value,
-                                              hint=k.help)
-                elif k.kind in ("int", "float"):
-                    h = self.gui.add_number(k.name, value, hint=k.help)
-                else:
-                    h = self.gui.add_text(k.name, str(value), hint=k.help)
-                h.on_update(lambda _e: self._on_control())
-                self._option_handles[k.name] = h
+                ctl = KeyControl(self.gui, k, current[k.name])
+                ctl.handle.on_update(lambda _e, c=ctl, n=k.name: self._on_key(
+                    c, lambda v: self.scenario.replace(**{n: v})))
+                self.option_controls[k.name] = ctl
         self.teach_md.content = teaching.teaching_markdown(spec.label, spec.summary,
                                                            spec.equations, spec.reference)
+
+    @property
+    def _option_handles(self) -> dict[str, object]:
+        """The option controls' viser handles, by option name."""
+        return {name: ctl.handle for name, ctl in self.option_controls.items()}
 
     @property
     def _syncing(self) -> bool:
@@ -248,65 +280,105 @@ class Session:
 
     # -- control -> scenario ------------------------------------------------------------
     def current_scenario(self) -> Scenario:
-        """The scenario the controls describe now."""
-        changes = {
-            "algorithm": self.algorithm.value, "sigma_m": float(self.sigma.value),
-            "noise_corr_s": float(self.noise_corr.value),
-            "p_fa": float(self.p_fa.value), "mask_deg": float(self.mask.value),
-            "seed": int(self.seed.value),
-        }
-        keys = algorithms.get(self.algorithm.value).option_keys
-        for name, h in list(self._option_handles.items()):
-            if name not in keys:  # controls of the previous algorithm, going away
-                continue
-            val = h.value
-            if keys[name].kind == "float_or_auto" and isinstance(val, str) \
-                    and val.strip().lower() != "auto":
-                from raimcore.scenario import parse_value
+        """The scenario the controls show (the one the next recompute runs)."""
+        return self.scenario
 
-                val = parse_value(val.strip())
-            changes[name] = val
-        return self.scenario.replace(**changes)
+    def _on_key(self, ctl: KeyControl, apply: Callable[[object], Scenario],
+                after: Callable[[], None] | None = None) -> None:
+        """A user's entry in ``ctl``: the scenario ``apply(value)`` gives, or a one-line
+        refusal that leaves scenario and control at the last valid value."""
+        if self._syncing:
+            return
+        with self._edit_lock:
+            try:
+                value = ctl.read()
+                if value == ctl.value:  # the value it already stood for: nothing to do
+                    ctl.accept(value)
+                    return
+                new = apply(value)
+            except ValueError as exc:
+                if not input_error(exc):
+                    raise
+                self._refuse(exc, ctl.revert)
+                return
+            ctl.accept(value)
+            changed = self._set_scenario(new)
+            if after is not None:
+                after()
+        if changed:
+            self.request_recompute()
+
+    def _set_scenario(self, new: Scenario) -> bool:
+        """Make ``new`` the session's scenario; True when it differs from the old one."""
+        old, self.scenario = self.scenario, new
+        return new != old or new.to_dict() != old.to_dict()
+
+    def _refuse(self, exc: BaseException, revert: Callable[[], None]) -> None:
+        """A refused entry: the control shows the last valid value again, the status line
+        says why (one line naming the key), the log gets one line (no traceback)."""
+        self._syncing = True
+        try:
+            revert()
+        finally:
+            self._syncing = False
+        log.info("refused: %s", exc)
+        self._show_error(exc)
 
     def _on_algorithm(self) -> None:
         if self._syncing:
             return
-        self._build_option_controls()
+        with self._edit_lock:
+            name = self.algorithm.value
+            if name == self.scenario.algorithm:
+                return
+            try:
+                new = self.scenario.replace(algorithm=name)
+            except ValueError as exc:
+                if not input_error(exc):
+                    raise
+                self._refuse(exc, lambda: setattr(self.algorithm, "value",
+                                                  self.scenario.algorithm))
+                return
+            self._set_scenario(new)
+            self._build_option_controls()
         self.request_recompute()
-
-    def _on_control(self) -> None:
-        if not self._syncing:
-            self.request_recompute()
 
     def _on_preset(self) -> None:
         if self._syncing:
             return
+        if self.preset.value == self._preset_name:
+            return  # the preset open now (edited or not): a touch is not a reload
         target = self.presets.get(self.preset.value, self.preset.value)
-        self.open_scenario(target if isinstance(target, Scenario) else load_scenario(target))
+        try:
+            scenario = target if isinstance(target, Scenario) else load_scenario(target)
+        except ValueError as exc:
+            if not input_error(exc):
+                raise
+            self._refuse(exc, lambda: setattr(self.preset, "value", self.scenario.name))
+            return
+        self._preset_name = self.preset.value
+        self.open_scenario(scenario)
 
     def open_scenario(self, scenario: Scenario) -> None:
         """Switch this session to ``scenario``: controls, fault editor and time follow."""
-        self.scenario = scenario
-        self._syncing = True
-        try:
-            s = self.scenario
-            self.algorithm.value = s.algorithm
-            self.sigma.value = s.sigma_m
-            self.noise_corr.max = max(float(self.noise_corr.max), s.noise_corr_s)
-            self.noise_corr.value = s.noise_corr_s
-            self.p_fa.value = s.p_fa
-            self.mask.value = s.mask_deg
-            self.seed.value = int(s.seed)
-            for h in (self.fault_t0, self.fault_t1, self.time):
-                h.max = float(s.duration_s)
-                h.step = float(s.step_s)
-            self.fault_t1.value = float(s.duration_s)
-            self.time.value = 0.0
-            self._fault_index = 0 if s.faults else -1
-            self._build_option_controls()
-        finally:
-            self._syncing = False
-        self._sync_fault_controls()
+        with self._edit_lock:
+            self.scenario = s = scenario
+            self._syncing = True
+            try:
+                self.algorithm.value = s.algorithm
+                for name, ctl in self.controls.items():
+                    ctl.show(getattr(s, name))
+                    ctl.reset_range()
+                self.time.max = float(s.duration_s)
+                self.time.step = float(s.step_s)
+                self.time.value = 0.0
+                self._fault_index = 0 if s.faults else -1
+                self._build_option_controls()
+            finally:
+                self._syncing = False
+            self._sync_fault_controls()
+            for ctl in self.fault_controls.values():
+                ctl.reset_range()
         self.request_recompute()
 
     # -- recordings ---------------------------------------------------------------------
@@ -314,12 +386,12 @@ class Session:
         """Open a RINEX recording (paths on the server) and offer it as a preset."""
         from raimcore.scenario import recording_scenario
 
-        scenario = recording_scenario(obs, nav, algorithm=self.algorithm.value)
+        scenario = recording_scenario(obs, nav, algorithm=self.scenario.algorithm)
         self.presets[scenario.name] = scenario
         self._syncing = True
         try:
             self.preset.options = list(self.presets)
-            self.preset.value = scenario.name
+            self.preset.value = self._preset_name = scenario.name
             self.rec_obs.value, self.rec_nav.value = str(obs), str(nav)
         finally:
             self._syncing = False
@@ -329,6 +401,9 @@ class Session:
         try:
             self.open_recording(self.rec_obs.value.strip(), self.rec_nav.value.strip())
         except ValueError as exc:
+            if not input_error(exc):
+                raise
+            log.info("recording refused: %s", exc)
             self._show_error(exc)
 
     def use_measured_correlation(self) -> float | None:
@@ -346,9 +421,9 @@ class Session:
             return None
         if not (0.0 < corr < math.inf):
             return None
-        value = float(round(corr / 5.0) * 5.0)  # the control's step
-        self.noise_corr.max = max(float(self.noise_corr.max), value)
-        self.noise_corr.value = value  # fires a recompute like a user's move
+        step = float(self.noise_corr.step)
+        value = float(round(corr / step) * step)  # on the control's grid
+        self.noise_corr.value = value  # a user's entry: checked, shown (widening), run
         return value
 
     def _on_upload(self, button, field) -> None:
@@ -376,37 +451,51 @@ class Session:
         used = np.asarray(data.used).any(axis=0)
         return [n for n, u in zip(data.sat_names, used, strict=True) if u]
 
+    def _t1_shown(self, t1_s: float) -> float:
+        """The fault-end slider's position for ``t1_s``: "until the end" at the run's end."""
+        return float(self.scenario.duration_s) if t1_s == math.inf else float(t1_s)
+
+    def _t1_of(self, x: float) -> float:
+        """The fault end a user's slider position means (the run's end and beyond: none)."""
+        return math.inf if x >= self.scenario.duration_s else float(x)
+
     def _sync_fault_controls(self) -> None:
         """Show the selected fault in the editor controls (without recomputing)."""
-        faults = self.scenario.faults
+        s = self.scenario
+        faults = s.faults
+        fc = self.fault_controls
         self._syncing = True
         try:
             labels = [fault_label(k, f) for k, f in enumerate(faults)] or [NO_FAULT]
             self.fault_pick.options = labels
             visible = self._visible_sats()
-            if 0 <= self._fault_index < len(faults):
+            for name in ("t0_s", "t1_s"):
+                fc[name].set_usual_range(0.0, float(s.duration_s), float(s.step_s))
+            editing = 0 <= self._fault_index < len(faults)
+            if editing:
                 f = faults[self._fault_index]
                 self.fault_pick.value = labels[self._fault_index]
-                opts = visible if f.sat in visible else [*visible, f.sat]
-                self.fault_sat.options = opts
+                self.fault_sat.options = visible if f.sat in visible else [*visible, f.sat]
                 self.fault_sat.value = f.sat
-                self.fault_kind.value = f.kind
-                self.fault_bias.value = float(np.clip(f.bias_m, 0, self.fault_bias.max))
-                self.fault_rate.value = float(np.clip(f.rate_mps, 0, self.fault_rate.max))
-                self.fault_t0.value = float(f.t0_s)
-                self.fault_t1.value = float(min(f.t1_s, self.scenario.duration_s))
-                editing = True
+                fc["kind"].show(f.kind)
+                # The inactive size shows what a change of type would give.
+                fc["bias_m"].show(f.bias_m if f.kind == "step" or f.bias_m != 0.0
+                                  else FAULT_KEYS["bias_m"].default)
+                fc["rate_mps"].show(f.rate_mps if f.kind == "ramp" or f.rate_mps != 0.0
+                                    else FAULT_KEYS["rate_mps"].default)
+                fc["t0_s"].show(f.t0_s)
+                fc["t1_s"].show(f.t1_s)
+                for ctl in fc.values():
+                    ctl.name = f"fault {f.sat} {ctl.key.name}"
             else:
                 self.fault_pick.value = labels[0]
                 self.fault_sat.options = visible
-                editing = False
-            for h in (self.fault_sat, self.fault_kind, self.fault_bias, self.fault_rate,
-                      self.fault_t0, self.fault_t1, self.fault_remove):
+                fc["t1_s"].show(math.inf)
+            for h in (self.fault_sat, *(c.handle for c in fc.values()), self.fault_remove):
                 h.disabled = not editing
             if editing:
-                kind = self.fault_kind.value
-                self.fault_bias.disabled = kind != "step"
-                self.fault_rate.disabled = kind != "ramp"
+                self.fault_bias.disabled = f.kind != "step"
+                self.fault_rate.disabled = f.kind != "ramp"
         finally:
             self._syncing = False
 
@@ -424,25 +513,36 @@ class Session:
             finally:
                 self._syncing = False
 
-    def _fault_from_controls(self) -> Fault:
-        t0 = float(self.fault_t0.value)
-        t1 = float(self.fault_t1.value)
-        t1 = math.inf if t1 >= self.scenario.duration_s else t1
-        if t1 <= t0:
-            t1 = t0 + float(self.scenario.step_s)
-        return Fault(sat=self.fault_sat.value, kind=self.fault_kind.value, t0_s=t0, t1_s=t1,
-                     bias_m=float(self.fault_bias.value),
-                     rate_mps=float(self.fault_rate.value))
+    def _with_fault_field(self, name: str, value) -> Scenario:
+        """The scenario with one field of the edited fault changed (the fault and the
+        scenario check it). A change of type takes the size its control shows."""
+        faults = list(self.scenario.faults)
+        k = self._fault_index
+        if not 0 <= k < len(faults):
+            return self.scenario
+        f = faults[k]
+        changes = {name: value}
+        if name == "kind" and value != f.kind:
+            size = "bias_m" if value == "step" else "rate_mps"
+            changes[size] = self.fault_controls[size].value
+        faults[k] = dataclasses.replace(f, **changes)
+        return self.scenario.with_faults(*faults)
 
-    def _set_faults(self, faults) -> None:
-        self.scenario = self.scenario.with_faults(*faults)
-
-    def _on_fault_edit(self) -> None:
+    def _on_fault_sat(self) -> None:
         if self._syncing or not (0 <= self._fault_index < len(self.scenario.faults)):
             return
-        faults = list(self.scenario.faults)
-        faults[self._fault_index] = self._fault_from_controls()
-        self._set_faults(faults)
+        with self._edit_lock:
+            sat = self.fault_sat.value
+            if sat == self.scenario.faults[self._fault_index].sat:
+                return
+            try:
+                new = self._with_fault_field("sat", sat)
+            except ValueError as exc:
+                if not input_error(exc):
+                    raise
+                self._refuse(exc, self._sync_fault_controls)
+                return
+            self._set_scenario(new)
         self._sync_fault_controls()
         self.request_recompute()
 
@@ -455,14 +555,25 @@ class Session:
         self._sync_fault_controls()
 
     def add_fault(self, fault: Fault | None = None) -> None:
-        """Add a fault (default: a 50 m step on a visible satellite not yet faulty)."""
-        if fault is None:
-            taken = {f.sat for f in self.scenario.faults}
-            free = [n for n in self._visible_sats() if n not in taken] or self._visible_sats()
-            t_mid = float(self.scenario.duration_s) / 3.0
-            fault = Fault(sat=free[0], kind="step", t0_s=round(t_mid), bias_m=50.0)
-        self._set_faults([*self.scenario.faults, fault])
-        self._fault_index = len(self.scenario.faults) - 1
+        """Add a fault (default: a step of the bias key's default size on a visible
+        satellite not yet faulty, from a third of the run)."""
+        with self._edit_lock:
+            if fault is None:
+                taken = {f.sat for f in self.scenario.faults}
+                free = ([n for n in self._visible_sats() if n not in taken]
+                        or self._visible_sats())
+                t_mid = float(self.scenario.duration_s) / 3.0
+                fault = Fault(sat=free[0], kind="step", t0_s=float(round(t_mid)),
+                              bias_m=FAULT_KEYS["bias_m"].default)
+            try:
+                new = self.scenario.with_faults(*self.scenario.faults, fault)
+            except ValueError as exc:
+                if not input_error(exc):
+                    raise
+                self._refuse(exc, lambda: None)
+                return
+            self._set_scenario(new)
+            self._fault_index = len(self.scenario.faults) - 1
         self._sync_fault_controls()
         self.request_recompute()
 
@@ -470,13 +581,14 @@ class Session:
         self.add_fault()
 
     def remove_fault(self, index: int | None = None) -> None:
-        k = self._fault_index if index is None else index
-        faults = list(self.scenario.faults)
-        if not (0 <= k < len(faults)):
-            return
-        del faults[k]
-        self._set_faults(faults)
-        self._fault_index = min(k, len(faults) - 1)
+        with self._edit_lock:
+            k = self._fault_index if index is None else index
+            faults = list(self.scenario.faults)
+            if not (0 <= k < len(faults)):
+                return
+            del faults[k]
+            self._set_scenario(self.scenario.with_faults(*faults))
+            self._fault_index = min(k, len(faults) - 1)
         self._sync_fault_controls()
         self.request_recompute()
 
@@ -490,12 +602,19 @@ class Session:
     def _recompute(self) -> None:
         t0 = time.perf_counter()
         scenario = self.current_scenario()
-        result = self._run_cached(scenario)
+        try:
+            result = self._run_cached(scenario)
+        except ValueError as exc:
+            if not input_error(exc):
+                raise  # a bug: the scheduler logs its traceback
+            log.info("run refused: %s", exc)  # bad input: one line, no traceback
+            self._show_error(exc)
+            return
         t1 = time.perf_counter()
         view = run_view(result)
         figs = {key: build(view)
                 for key, build in panels.panels_for(view, self.per_sat_pick.value)}
-        verdict = teaching.verdict(view, scenario.p_fa)
+        verdict = teaching.verdict(view, result.summary, scenario.p_fa)
         t2 = time.perf_counter()
         self.result, self.view, self.figures = result, view, figs
         self.i_epoch = self._time_index(float(self.time.value))
@@ -632,7 +751,9 @@ class Session:
             # At the current time: the sky plot's and the particle cloud's "now" included.
             parts.append(pio.to_html(fig.to_plotly(self.i_epoch), full_html=False,
                                      include_plotlyjs=(k == 0)))
-        verdict = html.escape(teaching.verdict(self.view)) if self.view else ""
+        verdict = (html.escape(teaching.verdict(self.view, self.result.summary,
+                                                self.result.scenario.p_fa))
+                   if self.view is not None else "")
         name = html.escape(self.scenario.name)
         page = ("<!doctype html><html><head><meta charset='utf-8'><title>RAIM Studio: "
                 f"{name}</title></head><body><h2>RAIM Studio: {name}</h2><p>{verdict}</p>"
@@ -648,8 +769,10 @@ class Session:
 
     # -- lifecycle ----------------------------------------------------------------------
     def _show_error(self, exc: BaseException) -> None:
+        """The status line says what went wrong, in one line."""
+        text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         try:
-            self.status.content = f"**Error:** {html.escape(str(exc))}"
+            self.status.content = f"**Error:** {html.escape(text)}"
         except Exception:  # noqa: BLE001 - the client may be gone
             pass
 
@@ -658,6 +781,25 @@ class Session:
         self.scheduler.close()
         if self._upload_dir is not None:
             shutil.rmtree(self._upload_dir, ignore_errors=True)
+
+
+def input_error(exc: BaseException) -> bool:
+    """True when ``exc`` is a refused input: a :class:`~raimcore.schema.SchemaError`, or a
+    ``ValueError`` raised by RAIM Studio's own code (a checked value); False when it comes
+    from inside numpy, scipy or the standard library (a bug, whose traceback is wanted).
+    The command line draws the same line."""
+    if isinstance(exc, SchemaError):
+        return True
+    if not isinstance(exc, ValueError):
+        return False
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    if tb is None:
+        return True
+    where = Path(tb.tb_frame.f_code.co_filename).resolve()
+    ours = (Path(raimcore.__file__).resolve().parent, Path(__file__).resolve().parent)
+    return any(root in where.parents for root in ours)
 
 
 def preset_table() -> dict[str, str]:

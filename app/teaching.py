@@ -1,5 +1,6 @@
 """Teaching text for the dashboard: the chosen algorithm explained, and a one-line verdict
-of the current run ("fault on G10 detected at t = 34 s, G10 excluded, HPE back to 12 m").
+of the current run ("fault on G10 detected at t = 34 s, G10 excluded, HPE back to 12 m")
+whose counts come from the run's :class:`~raimcore.scoring.Summary`.
 
 Pure functions of plain data; no GUI import.
 """
@@ -10,7 +11,7 @@ import re
 
 import numpy as np
 
-from raimcore.scoring import in_fault_memory
+from raimcore.scoring import Summary, in_fault_memory
 
 from .figures import RunView
 
@@ -66,42 +67,48 @@ def _fmt_t(t_s: float) -> str:
     return f"{t_s:.0f} s" if abs(t_s - round(t_s)) < 1e-6 else f"{t_s:.1f} s"
 
 
-def verdict(view: RunView, p_fa: float | None = None) -> str:
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def verdict(view: RunView, summary: Summary, p_fa: float | None = None) -> str:
     """One line saying what happened in the run, for every injected fault.
 
+    The counts (false alarms k of n fault-free epochs, unavailable and detect-only epochs,
+    faults that never act) are the run's :class:`~raimcore.scoring.Summary`, the same the
+    command line prints; the per-fault story (detection time, exclusion, error) is read
+    from ``view``.
+
     Examples: ``"Fault on G10 detected at t = 34 s (14 s after onset), G10 excluded, HPE
-    back to 12 m."``, ``"Fault on G10 (t = 20 s..80 s) never detected."``, ``"No fault
-    injected: 1 alarm in 600 epochs (false alarms)."``
+    back to 12 m."``, ``"Fault on G10 (from t = 20 s) never detected."``, ``"No fault
+    injected: 1 alarm in 600 epochs (false alarms, expected about 0.6)."``
     """
     t = view.t_s
     n_e = t.shape[0]
     if n_e == 0:
         return "Empty run."
+    fa = summary.false_alarm
+    warnings = [_sentence(n.removeprefix("warning:").strip()) for n in summary.notes
+                if n.startswith("warning:")]
+    tail = [*warnings, *_epoch_notes(summary)]
     alarm = np.asarray(view.table.get("alarm", np.zeros(n_e, bool)), dtype=bool)
-    status = np.asarray(view.table.get("status", np.full(n_e, "ok")))
-    n_unavail = int(np.sum(status == "unavailable"))
-    faulty = np.flatnonzero(np.any(view.fault_bias_m != 0.0, axis=0))
-    tail = f" ({n_unavail} epochs unavailable)" if n_unavail else ""
-    if faulty.size == 0:
-        n_alarm = int(alarm.sum())
-        rate = f", expected about {p_fa * n_e:.2g}" if p_fa is not None else ""
-        return (f"No fault injected: {n_alarm} alarm{'s' if n_alarm != 1 else ''} in {n_e} "
-                f"epochs (false alarms{rate}).{tail}")
+    faulty = np.flatnonzero(np.any(view.faulted, axis=0))
+    if summary.faulted_epochs == 0 or faulty.size == 0:
+        what = "No fault acts" if warnings else "No fault injected"
+        rate = f", expected about {p_fa * fa.n:.2g}" if p_fa is not None else ""
+        return " ".join([f"{what}: {_plural(fa.k, 'alarm')} in {fa.n} epochs (false "
+                         f"alarms{rate}).", *tail])
     hpe_after = view.column("hpe_after_m")
     hpe_before = view.column("hpe_before_m")
     lines = []
     for j in faulty:
         name = view.sat_names[j]
         active = view.faulted[:, j]
-        if not active.any():
-            lines.append(f"Fault on {name} never seen: the satellite is not tracked "
-                         f"while the fault is on.")
-            continue
         i_on = int(np.argmax(active))
         det = alarm & (np.arange(n_e) >= i_on) & active
         if not det.any():
             msg = (f"Fault on {name} (from t = {_fmt_t(t[i_on])}) never detected")
-            if hpe_before is not None:
+            if hpe_before is not None and np.isfinite(hpe_before[active]).any():
                 msg += f", HPE up to {np.nanmax(np.abs(hpe_before[active])):.0f} m"
             lines.append(msg + ".")
             continue
@@ -126,15 +133,36 @@ def verdict(view: RunView, p_fa: float | None = None) -> str:
             else:
                 msg += ", nothing excluded"
         lines.append(msg + ".")
-    faulted = np.any(view.faulted, axis=1)
-    # Windowed or filtering algorithms still hold a fault for `memory_epochs` after it ends:
-    # their alarms there are not false alarms (the same rule as raimcore.scoring.summarize).
-    memory = in_fault_memory(faulted, view.column("memory_epochs"))
-    n_fa = int(np.sum(alarm & ~faulted & ~memory))
-    if n_fa:
-        lines.append(f"{n_fa} alarm{'s' if n_fa != 1 else ''} while no fault was on.")
-    n_mem = int(np.sum(alarm & memory))
-    if n_mem:
-        lines.append(f"{n_mem} alarm{'s' if n_mem != 1 else ''} just after the fault ended, "
-                     f"while it was still in the algorithm's window.")
-    return " ".join(lines) + tail
+    if fa.k:
+        lines.append(f"{_plural(fa.k, 'alarm')} while no fault was on ({fa.k} of {fa.n} "
+                     f"fault-free epochs).")
+    if summary.fault_memory_epochs:
+        # Windowed or filtering algorithms still hold a fault for `memory_epochs` after it
+        # ends: their alarms there are not false alarms (the summary leaves them out).
+        memory = in_fault_memory(np.any(view.faulted, axis=1), view.column("memory_epochs"))
+        n_mem = int(np.sum(alarm & memory))
+        if n_mem:
+            lines.append(f"{_plural(n_mem, 'alarm')} just after the fault ended, while it "
+                         f"was still in the algorithm's window.")
+    return " ".join([*lines, *tail])
+
+
+def _sentence(text: str) -> str:
+    """``text`` as a sentence: capital first letter, full stop."""
+    text = text.strip()
+    if not text:
+        return text
+    return text[0].upper() + text[1:] + ("" if text.endswith((".", "!", "?")) else ".")
+
+
+def _epoch_notes(summary: Summary) -> list[str]:
+    """The epochs no statistic covers fully, named with their reason."""
+    out = []
+    if summary.unavailable_epochs:
+        out.append(f"{_plural(summary.unavailable_epochs, 'epoch')} of {summary.epochs} "
+                   f"unavailable (too few satellites or singular geometry: no position, in "
+                   f"no statistic).")
+    if summary.detect_only_epochs:
+        out.append(f"{_plural(summary.detect_only_epochs, 'epoch')} detect-only (one "
+                   f"redundant measurement: a fault can be detected, not isolated).")
+    return out

@@ -194,8 +194,8 @@ def test_panel_registry_shows_new_algorithm_outputs_without_dashboard_changes(de
     assert "hpl_m" not in col_names  # claimed by the error panel, not repeated
 
 
-def test_verdict_names_detection_exclusion_and_error(default_view):
-    text = teaching.verdict(default_view, 1e-3)
+def test_verdict_names_detection_exclusion_and_error(default_view, default_result):
+    text = teaching.verdict(default_view, default_result.summary, 1e-3)
     assert text.startswith("Fault on G10 detected at t = ")
     assert "G10 excluded" in text and "HPE back to" in text
     t_det = float(text.split("t = ")[1].split(" s")[0])
@@ -206,24 +206,55 @@ def test_verdict_without_fault_counts_false_alarms():
     from app.session import run_view
 
     res = run_scenario(load_scenario("default", faults=[]))
-    text = teaching.verdict(run_view(res), 1e-3)
+    text = teaching.verdict(run_view(res), res.summary, 1e-3)
     assert text.startswith("No fault injected:") and "600 epochs" in text
 
 
 def test_verdict_does_not_call_alarms_in_the_window_after_a_fault_false():
     from app.session import run_view
+    from raimcore.scoring import summarize
 
     res = run_scenario(load_scenario("seed002", seed=3))
     view = run_view(res)
-    text = teaching.verdict(view, 1e-3)
+    text = teaching.verdict(view, res.summary, 1e-3)
     assert text.startswith("Fault on G19 detected at t = ")
     # pf-llr's window (W = 30) still holds the step for a while after t = 152 s: those
     # alarms are reported as such, not as alarms "while no fault was on".
     assert "just after the fault ended" in text
     assert "while no fault was on" not in text
-    view_no_memory = type(view)(**{**view.__dict__, "table": {
-        k: v for k, v in view.table.items() if k != "memory_epochs"}})
-    assert "while no fault was on" in teaching.verdict(view_no_memory, 1e-3)
+    # Without the window column the summary counts those alarms as false ones, and the
+    # verdict says so with the summary's counts.
+    table = type(res.table)({k: v for k, v in res.table.columns.items()
+                             if k != "memory_epochs"}, res.table.per_sat, res.table.sat_names)
+    plain = summarize(table)
+    assert plain.false_alarm.k > 0
+    view_no_memory = type(view)(**{**view.__dict__, "table": table.columns})
+    text = teaching.verdict(view_no_memory, plain, 1e-3)
+    assert (f"{plain.false_alarm.k} alarms while no fault was on ({plain.false_alarm.k} of "
+            f"{plain.false_alarm.n} fault-free epochs)") in text
+    assert "just after the fault ended" not in text
+
+
+def test_verdict_reads_its_counts_from_the_summary():
+    """Unavailable and detect-only epochs and faults that never act are named, with the
+    summary's numbers (not recounted)."""
+    import dataclasses
+
+    from app.session import run_view
+    from raimcore.measure.faults import Fault
+
+    res = run_scenario(load_scenario("default", faults=[Fault("G10", "step", t0_s=2000.0,
+                                                              bias_m=50.0)]))
+    view = run_view(res)
+    text = teaching.verdict(view, res.summary, 1e-3)
+    assert text.startswith("No fault acts: 0 alarms in 600 epochs")
+    assert "Fault G10 step from t = 2000 s never acts: its window" in text
+    # The counts are the summary's: a summary saying otherwise changes the verdict.
+    fake = dataclasses.replace(res.summary, unavailable_epochs=7, detect_only_epochs=3,
+                               false_alarm=type(res.summary.false_alarm)(2, 593))
+    text = teaching.verdict(view, fake, 1e-3)
+    assert "2 alarms in 593 epochs" in text
+    assert "7 epochs of 600 unavailable" in text and "3 epochs detect-only" in text
 
 
 def test_tex_is_readable_without_a_math_renderer():
@@ -318,7 +349,8 @@ def test_fault_controls_edit_add_and_remove_faults(session):
     (f,) = s.result.scenario.faults
     assert (f.sat, f.kind, f.bias_m, f.t0_s, f.t1_s) == ("G10", "step", 200.0, 100.0, 300.0)
     bias = s.result.truth.fault_bias_m[:, s.result.measurements.sat_names.index("G10")]
-    assert np.all(bias[(s.result.measurements.t_s >= 100) & (s.result.measurements.t_s < 300)] == 200.0)
+    t = s.result.measurements.t_s
+    assert np.all(bias[(t >= 100) & (t < 300)] == 200.0)
     assert "G10 detected at t = 100 s" in s.verdict_md.content
     # Only visible satellites are offered.
     used = s.result.measurements.used.any(axis=0)
@@ -453,12 +485,19 @@ def test_cli_has_a_dashboard_command_on_localhost():
     from raimcore.cli import build_parser
 
     args = build_parser().parse_args(["dashboard"])
-    assert (args.host, args.port, args.scenario) == ("127.0.0.1", 8080, "default")
+    # No --port: the default one, or the next free one (said on its own line).
+    assert (args.host, args.port, args.scenario) == ("127.0.0.1", None, "default")
     args = build_parser().parse_args(["dashboard", "--host", "192.0.2.1", "--port", "9000",
                                       "--scenario", "seed000-ramp"])
     assert (args.host, args.port, args.scenario) == ("192.0.2.1", 9000, "seed000-ramp")
 
 
 def test_app_code_never_defaults_to_all_interfaces():
+    import re
+
+    from app.server import DEFAULT_HOST
+
+    assert DEFAULT_HOST == "127.0.0.1"
+    # "0.0.0.0" may be named in a message; never as a value of its own (a default).
     for path in (ROOT / "app").rglob("*.py"):
-        assert "0.0.0.0" not in path.read_text(), path
+        assert not re.search(r"""["']0\.0\.0\.0["']""", path.read_text()), path

@@ -165,3 +165,17 @@ def test_measured_noise_correlation_is_one_click_away(session):
     corr = session.result.scenario.noise_corr_s
     assert 600.0 < corr < 3600.0  # ESBC: about 1283 s
     assert session.noise_corr.value == corr
+
+
+def test_touching_every_control_leaves_the_recording_identical(session):
+    from test_dashboard_roundtrip import touch_every_control
+
+    from raimcore.measure.faults import Fault
+
+    sat = session._visible_sats()[0]
+    session.add_fault(Fault(sat, "ramp", t0_s=600.0, t1_s=1800.0, rate_mps=-0.75))
+    _settle(session)
+    expected = session.scenario
+    assert expected.source == "rinex" and len(expected.faults) == 1
+    assert not session.status.content.startswith("**Error")
+    touch_every_control(session, expected)

@@ -137,3 +137,39 @@ def test_one_session_changes_while_the_other_stays(dash):
     finally:
         a.close()
         b.close()
+
+
+@pytest.mark.parametrize(("label", "bad", "key"), [("Noise sigma (m)", 0.0, "sigma_m"),
+                                                    ("Random seed", -3, "seed")])
+def test_a_raw_invalid_value_from_the_page_is_refused_without_a_traceback(dash, capfd,
+                                                                          caplog, label,
+                                                                          bad, key):
+    """The page's number field sends what is typed before it clamps: the server refuses
+    it in one line naming the key, keeps the scenario and puts the control back."""
+    import logging
+
+    known = set(dash.sessions.values())
+    a = ViserWsClient(dash.url)
+    try:
+        (sess,) = [s for s in dash.wait_for_sessions(len(known) + 1) if s not in known]
+        assert sess.scheduler.wait_idle(WAIT_S)
+        before = sess.scenario
+        good = getattr(before, key)
+        uuid = a.gui_uuid(label)
+        n_msgs = len(a.snapshot())
+        with caplog.at_level(logging.DEBUG):
+            a.set_value(uuid, bad)
+            t_end = time.monotonic() + WAIT_S
+            while "Error" not in sess.status.content and time.monotonic() < t_end:
+                time.sleep(0.05)
+            assert sess.scheduler.wait_idle(WAIT_S)
+        status = sess.status.content
+        assert status.startswith("**Error:**") and key in status and "\n" not in status
+        assert sess.scenario is before
+        # The page is told the last valid value.
+        a.wait_for(lambda m: m.get("type") == "GuiUpdateMessage" and m.get("uuid") == uuid
+                   and m.get("updates", {}).get("value") == good, start=n_msgs)
+        assert not any(r.exc_info for r in caplog.records)
+        assert "Traceback" not in capfd.readouterr().err
+    finally:
+        a.close()

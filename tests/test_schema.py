@@ -41,10 +41,16 @@ def key_table() -> str:
     lines += ["", "Options of each algorithm (scenario keys too; only the chosen algorithm's "
               "are accepted):", "", "| algorithm | option | default | unit | allowed | what |",
               "|---|---|---|---|---|---|"]
+    owners: dict[str, list[str]] = {}
+    first: dict[str, Key] = {}
     for name in algorithms.names():
         for k in algorithms.get(name).options:
-            lines.append(f"| `{name}` | `{k.name}` | `{_default(k)}` | {k.unit} | "
-                         f"{_cell(k.allowed)} | {_cell(k.help)} |")
+            owners.setdefault(k.name, []).append(name)
+            first.setdefault(k.name, k)
+    for key_name, k in first.items():  # an option shared by several algorithms: one row
+        who = ", ".join(f"`{n}`" for n in owners[key_name])
+        lines.append(f"| {who} | `{k.name}` | `{_default(k)}` | {k.unit} | "
+                     f"{_cell(k.allowed)} | {_cell(k.help)} |")
     return "\n".join(lines)
 
 

@@ -76,7 +76,7 @@ def main(argv=None) -> int:
     from app.server import Dashboard
     from app.session import run_view, scene_run
     from raimcore.pipeline import run_scenario
-from raimcore.scenario import load_scenario
+    from raimcore.scenario import load_scenario
 
     start = load_scenario(args.scenario)
     if args.algorithm:
