@@ -217,6 +217,8 @@ class Session:
             self.plots_folder = gui.add_folder("Panels")
         with self.plot_panel.add_tab("Learn"):
             self.teach_md = gui.add_markdown("")
+            with gui.add_folder("Report on this scenario", expand_by_default=False):
+                self.report_md = gui.add_markdown(scenario_report_markdown(self.scenario))
         self.plot_panel.dock_right()
         self.plot_panel.set_width(PLOT_PANEL_WIDTH)
         gui.main_panel.dock_left()
@@ -374,6 +376,7 @@ class Session:
                 self.time.value = 0.0
                 self._fault_index = 0 if s.faults else -1
                 self._build_option_controls()
+                self.report_md.content = scenario_report_markdown(s)
             finally:
                 self._syncing = False
             self._sync_fault_controls()
@@ -800,6 +803,19 @@ def input_error(exc: BaseException) -> bool:
     where = Path(tb.tb_frame.f_code.co_filename).resolve()
     ours = (Path(raimcore.__file__).resolve().parent, Path(__file__).resolve().parent)
     return any(root in where.parents for root in ours)
+
+
+def scenario_report_markdown(scenario: Scenario) -> str:
+    """The report beside a built-in scenario (``raim show NAME``), or a line saying there
+    is none; a recording points to the real-data report."""
+    from raimcore.scenario import scenario_report
+
+    name = "recordings" if scenario.source == "rinex" else scenario.name
+    report = scenario_report(name)
+    if report is None:
+        return (f"No report for *{html.escape(scenario.name)}*: the built-in scenarios have "
+                "one (`raim show NAME`).")
+    return report
 
 
 def preset_table() -> dict[str, str]:

@@ -501,3 +501,12 @@ def test_app_code_never_defaults_to_all_interfaces():
     # "0.0.0.0" may be named in a message; never as a value of its own (a default).
     for path in (ROOT / "app").rglob("*.py"):
         assert not re.search(r"""["']0\.0\.0\.0["']""", path.read_text()), path
+
+
+def test_learn_tab_shows_the_scenario_report(session):
+    assert session.report_md.content.startswith("# default:")
+    session.open_scenario(load_scenario("seed002"))
+    assert session.scheduler.wait_idle(WAIT_S)
+    assert session.report_md.content.startswith("# seed002:")
+    session.open_scenario(load_scenario("default").replace(name="mine"))
+    assert "No report for *mine*" in session.report_md.content
