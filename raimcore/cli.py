@@ -341,7 +341,7 @@ COMPARE_COLUMNS = (
 
 def _cmd_compare(args) -> int:
     from .pipeline import compare_algorithms
-    from .scenario import load_scenario
+    from .scenario import SCENARIO_KEYS, load_scenario
 
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
@@ -352,6 +352,10 @@ def _cmd_compare(args) -> int:
     over = _overrides(args)
     scenario = _recording_scenario(args, over) or load_scenario(args.scenario, **over)
     seed0 = scenario.seed
+    top = int(SCENARIO_KEYS["seed"].hi)
+    if seed0 + args.seeds - 1 > top:
+        raise ValueError(f"--seeds {args.seeds} from seed {seed0} goes past the largest "
+                         f"seed {top}; use fewer seeds or a smaller --seed")
     per_seed = [compare_algorithms(scenario.replace(seed=seed0 + k), names)
                 for k in range(args.seeds)]
     rows = []
@@ -401,7 +405,7 @@ def format_comparison(rows: list[dict]) -> str:
 
 def _write_rows(rows: list[dict], path: Path) -> None:
     if path.suffix.lower() == ".json":
-        path.write_text(json.dumps(rows, indent=1))
+        path.write_text(json.dumps(rows, indent=1, allow_nan=False))
         return
     import csv
 
@@ -460,6 +464,11 @@ def _cmd_montecarlo(args) -> int:
         raise ValueError(f"--runs must be >= 1, got {args.runs}")
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {args.seed}")
+    for x in args.scales or ():
+        if not (math.isfinite(x) and x > 0):
+            raise ValueError(f"--bias-scale must be a finite number > 0, got {x:g}")
     _, text = run_table(args.study, runs=args.runs, seed=args.seed,
                         scales=tuple(args.scales or (1.0, 2.0)), bias_unit=args.bias_unit,
                         gate=args.gate, workers=args.workers,
@@ -506,7 +515,7 @@ def main(argv=None) -> int:
     except ValueError as exc:
         if not _raised_by_us(exc):
             return _bug(exc)
-        print(f"raim: error: {exc}", file=sys.stderr)
+        print(f"raim: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # `raim run ... | head`: the reader left, nothing to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
@@ -517,6 +526,11 @@ def main(argv=None) -> int:
         return 1
     except Exception as exc:  # noqa: BLE001 - a bug: show it, and ask for a report
         return _bug(exc)
+
+
+def _one_line(exc: BaseException) -> str:
+    """The message of ``exc`` on one line (a value the user typed may hold a newline)."""
+    return " ".join(str(exc).split("\n")).strip() or type(exc).__name__
 
 
 def _raised_by_us(exc: BaseException) -> bool:

@@ -48,6 +48,10 @@ SYSTEMS = {"GPS": "G", "BDS": "C"}
 SOURCES = ("sim", "rinex")
 #: Longest run, in epochs (duration_s / step_s).
 MAX_EPOCHS = 2_000_000
+#: Smallest noise sigma (m) of a scenario: no pseudorange or altimeter is known better than
+#: a millimetre, and far smaller values overflow the weights 1 / sigma^2 (1e-300 m) or make
+#: a filter's covariance singular (1e-20 m).
+SIGMA_MIN_M = 1e-3
 #: A receiver position must lie this far from the Earth's centre (m): the surface to
 #: beyond the GEO ring, so [0, 0, 0] or a position typed in km is refused.
 TRUTH_RADIUS_M = (6.0e6, 5.0e7)
@@ -156,7 +160,30 @@ def _parse_path_or_nominal(name, value):
     v = coerce_str(name, value)
     if not v.strip():
         raise SchemaError(f"{name} must be \"nominal\" or the path of a YUMA almanac")
+    if v != "nominal" and not Path(v).is_file():
+        raise SchemaError(f"{name} must be \"nominal\" or the path of a YUMA almanac file; "
+                          f"{v!r} is not a file")
     return v
+
+
+def _constellation_names(s) -> tuple[tuple[str, ...], str]:
+    """The satellite names of ``s``'s constellation in its systems (before ``sats`` and
+    ``rename``) and how to call that constellation in a message. A YUMA almanac is read
+    (and checked) here, so that its errors name the key ``constellation``."""
+    from .sky.constellations import builtin, read_yuma_cached
+
+    if s.constellation == "nominal":
+        return builtin(s.systems).names, f"nominal {'+'.join(s.systems)} constellation"
+    try:
+        const = read_yuma_cached(s.constellation)
+    except ValueError as exc:
+        raise SchemaError(f"constellation: {exc}") from None
+    names = tuple(n for n, sy in zip(const.names, const.systems, strict=True)
+                  if sy in s.systems)
+    if not names:
+        raise SchemaError(f"constellation {s.constellation!r} is a GPS almanac: it has no "
+                          f"satellite of systems {', '.join(s.systems)} (add \"GPS\")")
+    return names, f"almanac {s.constellation}"
 
 
 @dataclass(frozen=True)
@@ -303,7 +330,8 @@ class Scenario:
         """
         d = self.to_dict()
         if "algorithm" in changes and changes["algorithm"] != self.algorithm:
-            new_keys = algorithms.get(changes["algorithm"]).option_keys
+            new_keys = algorithms.get(_parse_algorithm("algorithm", changes["algorithm"])
+                                      ).option_keys
             for name, _ in self.options:
                 if name not in new_keys:
                     d.pop(name, None)
@@ -370,6 +398,11 @@ def _check_together(s: Scenario) -> None:
         raise SchemaError(f"systems must name at least one of {', '.join(SYSTEMS)}")
     if len(set(s.systems)) != len(s.systems):
         raise SchemaError(f"systems lists a system twice: {list(s.systems)}")
+    for name in ("sigma_m", "sigma_baro_m"):
+        if getattr(s, name) < SIGMA_MIN_M:
+            raise SchemaError(f"{name} must be at least {SIGMA_MIN_M:g} m, got "
+                              f"{getattr(s, name):g} (a smaller sigma overflows the "
+                              "weights 1 / sigma^2)")
     if s.duration_s / s.step_s > MAX_EPOCHS:
         raise SchemaError(f"duration_s / step_s must be at most {MAX_EPOCHS:,} epochs, got "
                           f"{s.duration_s:g} / {s.step_s:g}")
@@ -388,31 +421,44 @@ def _check_together(s: Scenario) -> None:
                 raise SchemaError(f"{where}: satellite {n!r} is not of the chosen systems "
                                   f"({', '.join(s.systems)}: names start with "
                                   f"{', '.join(sorted(letters))})")
-    if s.source == "sim" and s.constellation == "nominal":
-        from .sky.constellations import builtin
+    if s.source == "sim":
+        _check_satellites(s)
 
-        base = builtin(s.systems).names
-        mapping = dict(s.rename)
-        missing = [a for a in mapping if a not in base]
-        if missing:
-            raise SchemaError(f"rename: unknown satellite(s) {', '.join(missing)} in the "
-                              f"nominal {'+'.join(s.systems)} constellation")
-        bad = [n for n in s.sats if n not in base]  # sats are chosen before renaming
+
+def _check_satellites(s: Scenario) -> None:
+    """``sats``, ``rename``, ``faults`` and ``restrict`` against the constellation of a
+    simulated scenario: every name exists, no two satellites end up with one name."""
+    base, what = _constellation_names(s)
+    bad = [n for n in s.sats if n not in base]  # sats are chosen before renaming
+    if bad:
+        raise SchemaError(f"sats: satellite(s) {', '.join(bad)} not in the {what}"
+                          f"{did_you_mean(bad[0], base)}")
+    if len(set(s.sats)) != len(s.sats):
+        twice = sorted({n for n in s.sats if s.sats.count(n) > 1})
+        raise SchemaError(f"sats lists {', '.join(twice)} twice")
+    pool = s.sats or base
+    mapping = dict(s.rename)
+    missing = [a for a in mapping if a not in pool]
+    if missing:
+        raise SchemaError(f"rename: satellite(s) {', '.join(missing)} not "
+                          + (f"among sats ({', '.join(s.sats)})" if s.sats else
+                             f"in the {what}") + did_you_mean(missing[0], pool))
+    known = [mapping.get(n, n) for n in pool]
+    clash = sorted({n for n in known if known.count(n) > 1})
+    if clash:
+        pairs = ", ".join(f"{a} = {b!r}" for a, b in s.rename if b in clash)
+        raise SchemaError(f"rename {{{pairs}}} gives two satellites the name(s) "
+                          f"{', '.join(clash)}; rename the satellite that has that name too, "
+                          "or choose another name")
+    for where, names in (("faults", [f.sat for f in s.faults]),
+                         ("restrict", [x for r in s.restrict for x in r.sats])):
+        bad = [n for n in names if n not in known]
         if bad:
-            raise SchemaError(f"sats: satellite(s) {', '.join(bad)} not in the nominal "
-                              f"{'+'.join(s.systems)} constellation"
-                              f"{did_you_mean(bad[0], base)}")
-        known = [mapping.get(n, n) for n in (s.sats or base)]
-        for where, names in (("faults", [f.sat for f in s.faults]),
-                             ("restrict", [x for r in s.restrict for x in r.sats])):
-            bad = [n for n in names if n not in known]
-            if bad:
-                raise SchemaError(f"{where}: satellite(s) {', '.join(bad)} not in this "
-                                  f"scenario's satellites ({', '.join(known)})"
-                                  if s.sats else
-                                  f"{where}: satellite(s) {', '.join(bad)} not in the nominal "
-                                  f"{'+'.join(s.systems)} constellation"
-                                  f"{did_you_mean(bad[0], known)}")
+            raise SchemaError(f"{where}: satellite(s) {', '.join(bad)} not in this "
+                              f"scenario's satellites ({', '.join(known)})"
+                              if s.sats else
+                              f"{where}: satellite(s) {', '.join(bad)} not in the {what}"
+                              f"{did_you_mean(bad[0], known)}")
 
 
 def from_dict(d: dict[str, Any], notes: tuple[str, ...] = ()) -> Scenario:

@@ -7,6 +7,7 @@ constellation's reference epoch (for an almanac: GPS seconds of the almanac week
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import dataclass
@@ -16,8 +17,8 @@ import numpy as np
 
 from .. import constants as k
 
-__all__ = ["Constellation", "gps_nominal", "beidou_nominal", "read_yuma", "combine",
-           "SYSTEM_PREFIX", "builtin"]
+__all__ = ["Constellation", "gps_nominal", "beidou_nominal", "read_yuma", "read_yuma_cached",
+           "combine", "SYSTEM_PREFIX", "builtin"]
 
 #: Satellite-name prefix of each system (RINEX 3 convention).
 SYSTEM_PREFIX = {"GPS": "G", "BDS": "C"}
@@ -80,9 +81,20 @@ class Constellation:
         n0 = np.sqrt(self.gm_m3ps2 / a**3)
         tk = t - self.toa_s
         mk = self.m0_rad + n0 * tk
-        ek = mk.copy()
-        for _ in range(10):  # Newton on Kepler's equation, converges for e < 0.1
-            ek = ek - (ek - self.ecc * np.sin(ek) - mk) / (1.0 - self.ecc * np.cos(ek))
+        # Newton on Kepler's equation M = E - e sin E. From E0 = M it converges within 10
+        # steps for GNSS orbits (e < 0.1); a more eccentric almanac orbit starts from
+        # E0 = pi, which converges for every e < 1, with more steps (Charles & Tatum 1998).
+        if np.any(self.ecc >= 0.1):
+            turns = mk - np.mod(mk, 2.0 * np.pi)  # solve for M in [0, 2 pi), add them back
+            mw = mk - turns
+            ek = np.where(self.ecc >= 0.1, np.pi, mw)
+            for _ in range(50):
+                ek = ek - (ek - self.ecc * np.sin(ek) - mw) / (1.0 - self.ecc * np.cos(ek))
+            ek = ek + turns
+        else:
+            ek = mk.copy()
+            for _ in range(10):
+                ek = ek - (ek - self.ecc * np.sin(ek) - mk) / (1.0 - self.ecc * np.cos(ek))
         nu = np.arctan2(np.sqrt(1.0 - self.ecc**2) * np.sin(ek), np.cos(ek) - self.ecc)
         u = nu + self.argp_rad
         r = a * (1.0 - self.ecc * np.cos(ek))
@@ -182,16 +194,58 @@ _YUMA_KEYS = {
     "mean anom(rad)": "m0", "af0(s)": "af0", "af1(s/s)": "af1", "week": "week",
 }
 
+#: What each YUMA field allows: (lo, hi, lo_open, hi_open, integer, in words). Every field
+#: must be a finite number besides. PRNs 1-63 (IS-GPS-200, tables 3-Ia and 3-Ib);
+#: eccentricity: an ellipse; toa: seconds of the week; inclination: radians.
+_YUMA_RANGE = {
+    "prn": (1, 63, False, False, True, "an integer PRN in [1, 63]"),
+    "health": (0, 255, False, False, True, "an integer in [0, 255]"),
+    "ecc": (0.0, 1.0, False, True, False, "a number in [0, 1) (an ellipse)"),
+    "toa": (0.0, k.SECONDS_PER_WEEK, False, True, False, "a number of seconds in [0, 604800)"),
+    "inc": (0.0, math.pi, False, False, False, "a number of radians in [0, pi]"),
+    "sqrt_a": (0.0, None, True, False, False, "a finite number > 0 (m^1/2)"),
+    "week": (0, None, False, False, True, "an integer >= 0"),
+}
+
+
+def _yuma_value(path, lineno: int, label: str, name: str, text: str) -> float:
+    """One YUMA field as a float, checked: finite, and within ``_YUMA_RANGE``."""
+    try:
+        x = float(text)
+    except ValueError:
+        raise ValueError(f"{path}:{lineno}: field {label!r} is not a number: "
+                         f"{text.strip()!r}") from None
+    lo, hi, lo_open, hi_open, integer, words = _YUMA_RANGE.get(
+        name, (None, None, False, False, False, "a finite number"))
+    bad = not math.isfinite(x) or (integer and not x.is_integer())
+    bad = bad or (lo is not None and (x < lo or (lo_open and x == lo)))
+    bad = bad or (hi is not None and (x > hi or (hi_open and x == hi)))
+    if bad:
+        raise ValueError(f"{path}:{lineno}: field {label!r} must be {words}, got "
+                         f"{text.strip()!r}")
+    return x
+
 
 def read_yuma(path) -> Constellation:
     """Read a GPS YUMA almanac; satellites are named ``G<PRN>``.
 
+    Every field is checked where it is read: a finite number, eccentricity in [0, 1),
+    sqrt(A) > 0 with the whole orbit above the Earth's surface, PRN 1-63 and unique,
+    toa within the week, inclination in [0, pi].
+
     Raises
     ------
-    ValueError naming the file and line for a malformed or truncated record.
+    ValueError naming the file, the line, the field and what it allows, for a missing or
+    unreadable file, a malformed, truncated or out-of-range record.
     """
     path = Path(path)
-    text = path.read_text(encoding="ascii", errors="replace").splitlines()
+    if not path.is_file():
+        raise ValueError(f"YUMA almanac {str(path)!r} does not exist or is not a file")
+    try:
+        text = path.read_text(encoding="ascii", errors="replace").splitlines()
+    except OSError as exc:
+        raise ValueError(f"YUMA almanac {str(path)!r} cannot be read: "
+                         f"{exc.strerror or exc}") from None
     recs, cur = [], None
     for lineno, line in enumerate(text, 1):
         if line.startswith("****"):
@@ -203,17 +257,13 @@ def read_yuma(path) -> Constellation:
             continue
         if cur is None or ":" not in line:
             raise ValueError(f"{path}:{lineno}: expected a YUMA record line 'Key: value', "
-                             f"got {line.strip()!r}")
+                             f"got {line.strip()[:60]!r}")
         key, val = line.split(":", 1)
         key = re.sub(r"\s+$", "", key.lower())
         name = _YUMA_KEYS.get(key)
         if name is None:
             raise ValueError(f"{path}:{lineno}: unknown YUMA field {key!r}")
-        try:
-            cur[name] = float(val)
-        except ValueError:
-            raise ValueError(f"{path}:{lineno}: field {key!r} is not a number: "
-                             f"{val.strip()!r}") from None
+        cur[name] = _yuma_value(path, lineno, key, name, val)
     if cur is not None:
         recs.append(cur)
     need = set(_YUMA_KEYS.values())
@@ -224,11 +274,40 @@ def read_yuma(path) -> Constellation:
                              f"{', '.join(sorted(missing))} (truncated file?)")
     if not recs:
         raise ValueError(f"{path}: no YUMA records found")
+    seen: dict[int, int] = {}
+    for r in recs:
+        prn = int(r["prn"])
+        if prn in seen:
+            raise ValueError(f"{path}:{r['_line']}: PRN {prn} appears twice (first at line "
+                             f"{seen[prn]}); a YUMA almanac has one record per satellite")
+        seen[prn] = r["_line"]
+        perigee_m = r["sqrt_a"] ** 2 * (1.0 - r["ecc"])
+        if perigee_m <= k.WGS84_A_M:
+            raise ValueError(f"{path}:{r['_line']}: PRN {prn}: sqrt(A) {r['sqrt_a']:g} m^1/2 "
+                             f"with eccentricity {r['ecc']:g} puts the perigee "
+                             f"{perigee_m / 1e3:,.0f} km from the Earth's centre, inside the "
+                             f"Earth ({k.WGS84_A_M / 1e3:,.0f} km): not an orbit")
     col = lambda key: np.array([r[key] for r in recs])  # noqa: E731
     names = tuple(f"G{int(r['prn']):02d}" for r in recs)
     return Constellation(names, ("GPS",) * len(recs), col("sqrt_a"), col("ecc"), col("inc"),
                          col("omega0"), col("omega_dot"), col("argp"), col("m0"), col("toa"),
                          np.full(len(recs), k.GM_GPS_M3PS2), col("health") == 0)
+
+
+def read_yuma_cached(path) -> Constellation:
+    """:func:`read_yuma`, cached on the file's resolved path, size and modification time
+    (a scenario reads its almanac when it is checked and again when it is run)."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError:
+        return read_yuma(p)  # raises, naming the file
+    return _read_yuma_stamped(str(p.resolve()), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=8)
+def _read_yuma_stamped(path: str, mtime_ns: int, size: int) -> Constellation:
+    return read_yuma(path)
 
 
 def builtin(systems) -> Constellation:

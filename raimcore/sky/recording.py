@@ -31,10 +31,11 @@ __all__ = ["recording_sky", "recording_keys", "load_recording", "receiver_ecef_m
 REAL_DATA_DEFAULTS = {"sigma_m": 1.0, "mask_deg": 10.0}
 
 
-def _stamp(path) -> tuple[str, int, int]:
+def _stamp(path, key: str) -> tuple[str, int, int]:
+    """The cache key of a file (resolved path, time, size); ``key`` names it in errors."""
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f"RINEX file {str(path)!r} does not exist")
+        raise ValueError(f"{key}: RINEX file {str(path)!r} does not exist or is not a file")
     st = p.stat()
     return str(p.resolve()), st.st_mtime_ns, st.st_size
 
@@ -51,14 +52,14 @@ def _corrected(obs_stamp, nav_stamp, systems, signals) -> Corrected:
 
 def load_recording(obs, nav, systems=("GPS", "BDS"), signals=()) -> Corrected:
     """Read and correct a recording (cached on the files' paths, sizes and times)."""
-    return _corrected(_stamp(obs), _stamp(nav), tuple(systems), tuple(signals))
+    return _corrected(_stamp(obs, "obs"), _stamp(nav, "nav"), tuple(systems), tuple(signals))
 
 
 def recording_keys(obs) -> dict:
     """Scenario keys that fit the recording ``obs`` (see
     :func:`raimcore.scenario.recording_scenario`): its name, GPS and BDS (those present),
     the whole recording at its own interval, and the real-data defaults."""
-    o = _read_obs(_stamp(obs))
+    o = _read_obs(_stamp(obs, "obs"))
     systems = [s for s, letter in SYSTEM_LETTER.items()
                if any(n[0] == letter for n in o.sat_names)] or ["GPS"]
     t = o.t_gps_s - o.t_gps_s[0] if len(o.t_gps_s) else np.zeros(1)
@@ -74,7 +75,7 @@ def receiver_ecef_m(s) -> np.ndarray:
     header position (zeros when the file has none)."""
     if s.truth_ecef_m:
         return np.array(s.truth_ecef_m, dtype=float)
-    return np.array(_read_obs(_stamp(s.obs)).approx_pos_ecef_m, dtype=float)
+    return np.array(_read_obs(_stamp(s.obs, "obs")).approx_pos_ecef_m, dtype=float)
 
 
 def _window(t_rel, t0, duration, step) -> np.ndarray:
@@ -92,7 +93,7 @@ def recording_sky(s) -> Sky:
     """The :class:`~raimcore.sky.Sky` of a ``source = "rinex"`` scenario ``s``: the epochs
     in its window, the satellites of its systems with a usable ephemeris (``s.sats`` when
     given), their positions and corrected pseudoranges, the station as the truth."""
-    obs_file = _read_obs(_stamp(s.obs))
+    obs_file = _read_obs(_stamp(s.obs, "obs"))
     corr = load_recording(s.obs, s.nav, s.systems, s.signals)
     notes = list(corr.notes)
     t_rel = corr.t_gps_s - corr.t_gps_s[0] if len(corr.t_gps_s) else corr.t_gps_s

@@ -158,11 +158,15 @@ def _header(path, lines: list[bytes], kind: str) -> tuple[float, int]:
 
 
 def _float(path, lineno: int, text: bytes, what: str) -> float:
+    """A finite number (``nan`` and ``inf``, which Python would parse, are refused)."""
     try:
-        return float(text.replace(b"D", b"E").replace(b"d", b"e"))
+        x = float(text.replace(b"D", b"E").replace(b"d", b"e"))
     except ValueError:
-        raise RinexError(path, lineno, f"expected {what}, got {text.decode('ascii', 'replace')!r}"
-                         ) from None
+        x = math.nan
+    if not math.isfinite(x):
+        raise RinexError(path, lineno, f"expected {what}, got "
+                         f"{text.decode('ascii', 'replace').strip()!r}")
+    return x
 
 
 def _int(path, lineno: int, text: bytes, what: str) -> int:
@@ -181,13 +185,16 @@ def _fields(path, block: np.ndarray, rows_lineno: np.ndarray, start: int, width:
     sub = np.char.strip(sub)
     blank = sub == b""
     try:
-        return np.where(blank, b"nan", sub).astype(float)
+        vals = np.where(blank, b"nan", sub).astype(float)
+        bad = ~blank & ~np.isfinite(vals)  # "nan" or "inf" written in the file
     except ValueError:
-        for k, s in enumerate(sub):
-            if not blank[k]:
-                _float(path, int(rows_lineno[k]), s, f"a number in columns {start + 1}-"
-                       f"{start + width}")
-        raise  # pragma: no cover - the loop above always finds it
+        bad = ~blank
+    if bad.any():
+        for k in np.flatnonzero(bad):
+            _float(path, int(rows_lineno[k]), sub[k], f"a number in columns {start + 1}-"
+                   f"{start + width}")
+        raise AssertionError("unreachable: _float refuses the bad field")  # pragma: no cover
+    return vals
 
 
 def _block(lines: list[bytes], idx: np.ndarray, width: int) -> np.ndarray:

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..lsq import clock_columns, geometry_rows
 from . import Sky
-from .constellations import builtin, read_yuma
+from .constellations import builtin, read_yuma_cached
 from .trajectories import flight_profile, static, straight_line
 
 __all__ = ["simulated_sky", "epoch_times"]
@@ -25,7 +25,7 @@ def simulated_sky(s) -> Sky:
     """Satellites of ``s.systems`` (``s.sats``, renamed by ``s.rename``) seen from the
     scenario's trajectory at every epoch."""
     const = (builtin(s.systems) if s.constellation == "nominal"
-             else read_yuma(s.constellation))
+             else read_yuma_cached(s.constellation))
     const = const if set(const.systems) <= set(s.systems) else const.subset(
         [n for n, sy in zip(const.names, const.systems, strict=True) if sy in s.systems])
     if not const.names:

@@ -12,6 +12,7 @@ first-pass solution, then refined once, so no prior position is needed.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from datetime import timedelta
 
 import numpy as np
 
@@ -19,7 +20,7 @@ from ..constants import C_MPS, OMEGA_E_RADPS
 from ..geometry import az_el, ecef_to_geodetic
 from ..lsq import LsqResult, wls
 from .ephemeris import from_nav, sat_pos_clock
-from .rinex import NavFile, ObsFile
+from .rinex import _GPS_EPOCH, NavFile, ObsFile
 
 __all__ = ["Corrected", "correct", "solve", "spp", "klobuchar", "troposphere",
            "elevation_sigma", "SYSTEM_LETTER", "DEFAULT_SIGNALS"]
@@ -177,6 +178,8 @@ def correct(obs: ObsFile, nav: NavFile, systems=("GPS", "BDS"), signals=(),
     pr = np.stack(pr_cols, axis=1)
     tracked = np.isfinite(pr)
     e_sel, usable = eph.select(names, t)
+    if not (tracked & usable).any():
+        raise ValueError(_no_valid_ephemeris(obs, nav, eph, t))
     stale = tracked & ~usable
     if stale.any():
         per = {names[k]: int(c) for k, c in enumerate(stale.sum(0)) if c}
@@ -208,14 +211,31 @@ def correct(obs: ObsFile, nav: NavFile, systems=("GPS", "BDS"), signals=(),
     return with_atmosphere(corr, nav, rx)
 
 
+def _no_valid_ephemeris(obs: ObsFile, nav: NavFile, eph, t) -> str:
+    """The message for a recording whose navigation file has no record valid at any
+    observation epoch (typically files of different days)."""
+    def span(x) -> str:
+        x = np.asarray(x, dtype=float)
+        if x.size == 0:
+            return "none"
+        lo, hi = (_GPS_EPOCH + timedelta(seconds=float(v)) for v in (x.min(), x.max()))
+        return f"{lo:%Y-%m-%d %H:%M} to {hi:%Y-%m-%d %H:%M}"
+
+    return (f"no ephemeris of the navigation file is valid within 4 h of the observation "
+            f"epochs: {obs.path} observes {span(t)}, {nav.path} has records for "
+            f"{span(eph.toe_gps_s[eph.healthy])} (GPS time); give the navigation file of "
+            "the same day")
+
+
 def _fill(pos, fallback) -> np.ndarray:
-    """Epochs without a solution take the median solution (or ``fallback``)."""
+    """Epochs without a solution take the median solution (or ``fallback``, (3,) or
+    (E, 3))."""
     ok = np.isfinite(pos).all(-1)
     if ok.any():
         fb = np.median(pos[ok], axis=0)
     else:
         fb = np.asarray(fallback, dtype=float)
-    return np.where(ok[:, None], pos, fb[None, :])
+    return np.where(ok[:, None], pos, np.broadcast_to(fb, pos.shape))
 
 
 def with_atmosphere(corr: Corrected, nav: NavFile, rx_ecef_m) -> Corrected:

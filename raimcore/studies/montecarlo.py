@@ -21,8 +21,11 @@ counts only if the full-set chi-square test (all N satellites, dof N - 5) also a
 often that test alarms (``detected_rate``, shared by the algorithms of a setting).
 
 Algorithms are named kernels (:data:`KERNELS`): ``"gf"``, ``"rs"``, ``"qv"``, ``"parity"``,
-with options after a colon, e.g. ``"gf:groups=100,weights=uniform"``. Another algorithm
-joins every study by adding one function to ``KERNELS`` (see :func:`register_kernel`).
+with options after a colon, e.g. ``"gf:groups=100,weights=uniform"``. The options are those
+the registered algorithm of the same name declares (:mod:`raimcore.algorithms`: type,
+range, default), so a study and a scenario mean the same by ``gf_groups``. Another
+algorithm joins every study by adding one function to ``KERNELS`` (see
+:func:`register_kernel`).
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ from scipy import optimize, stats
 
 from .._validate import check_choice, check_int, check_positive, check_probability, check_range
 from ..algorithms import groupfusion as gfm
+from ..algorithms._groupfusion_common import as_groups
 from ..geometry import geodetic_to_ecef, los_enu
 from ..sky.constellations import builtin
 
@@ -193,29 +197,28 @@ def _r(h):
     return h.shape[-1] + 1  # r = 4 + q (seed 004: 6 for GPS + BDS)
 
 
-def _groups_opt(n, r, groups):
-    return gfm.select_groups(n, r, None if groups in (None, "n2") else groups)
+# Each kernel takes its algorithm's options as the registered algorithm declares them
+# (raimcore.algorithms: gf_groups, gf_margin, ...), validated and with their defaults.
+
+def _gf(h, y, *, sigma_m, p_fa, rng, gf_groups, gf_margin, gf_weights):
+    g = gfm.select_groups(y.shape[-1], _r(h), as_groups(gf_groups))
+    return gfm.gf_isolate(h, y, g, p_fa, weights_lsq=sigma_m**-2, margin=gf_margin,
+                          weights=gf_weights).isolated
 
 
-def _gf(h, y, *, sigma_m, p_fa, rng, groups=None, margin=0.1, weights="pdop"):
-    g = _groups_opt(y.shape[-1], _r(h), groups)
-    return gfm.gf_isolate(h, y, g, p_fa, weights_lsq=sigma_m**-2, margin=float(margin),
-                          weights=weights).isolated
+def _qv(h, y, *, sigma_m, p_fa, rng, qv_groups, qv_margin, qv_norm):
+    g = gfm.select_groups(y.shape[-1], _r(h), as_groups(qv_groups))
+    return gfm.qv_isolate(h, y, g, p_fa, weights_lsq=sigma_m**-2, margin=qv_margin,
+                          norm=qv_norm)[0]
 
 
-def _qv(h, y, *, sigma_m, p_fa, rng, groups=None, margin=0.1, norm="share"):
-    g = _groups_opt(y.shape[-1], _r(h), groups)
-    return gfm.qv_isolate(h, y, g, p_fa, weights_lsq=sigma_m**-2, margin=float(margin),
-                          norm=norm)[0]
+def _rs(h, y, *, sigma_m, p_fa, rng, rs_draws):
+    return gfm.rs_isolate(h, y, p_fa, rng, weights_lsq=sigma_m**-2, n_draws=rs_draws)
 
 
-def _rs(h, y, *, sigma_m, p_fa, rng, draws=50):
-    return gfm.rs_isolate(h, y, p_fa, rng, weights_lsq=sigma_m**-2, n_draws=int(draws))
-
-
-def _parity(h, y, *, sigma_m, p_fa, rng, max_exclusions=3):
+def _parity(h, y, *, sigma_m, p_fa, rng, max_exclusions):
     return gfm.parity_isolate(h, y, p_fa, weights_lsq=sigma_m**-2,
-                              max_exclusions=int(max_exclusions))
+                              max_exclusions=max_exclusions)
 
 
 register_kernel("gf", _gf)
@@ -224,25 +227,55 @@ register_kernel("qv", _qv)
 register_kernel("parity", _parity)
 
 
-def parse_algorithm(text: str) -> tuple[str, dict]:
-    """``"gf:groups=100,weights=uniform"`` -> ``("gf", {"groups": 100, ...})``."""
+def _option_name(algorithm: str, short: str, keys) -> str:
+    """``groups`` of ``gf`` is the option ``gf_groups``; full names are taken as they are."""
+    prefixed = f"{algorithm}_{short}"
+    return prefixed if short not in keys and prefixed in keys else short
+
+
+@functools.lru_cache(maxsize=256)
+def _parse_cached(text: str) -> tuple[str, tuple]:
+    from .. import algorithms
+    from ..scenario import parse_value
+
     name, _, rest = text.partition(":")
     if name not in KERNELS:
         raise ValueError(f"algorithm must be one of {', '.join(KERNELS)} (with options "
                          f"after ':'), got {text!r}")
-    opts = {}
-    for item in filter(None, rest.split(",")):
+    keys = algorithms.get(name).option_keys if name in algorithms.names() else {}
+    given = {}
+    for item in filter(None, (x.strip() for x in rest.split(","))):
         key, eq, val = item.partition("=")
-        if not eq:
+        if not eq or not key.strip():
             raise ValueError(f"algorithm option must be KEY=VALUE, got {item!r} in {text!r}")
-        try:
-            opts[key] = int(val)
-        except ValueError:
-            try:
-                opts[key] = float(val)
-            except ValueError:
-                opts[key] = val
-    return name, opts
+        given[_option_name(name, key.strip(), keys)] = parse_value(val.strip())
+    if name not in algorithms.names():  # a kernel registered here only: no options
+        if given:
+            raise ValueError(f"algorithm {name!r} takes no options here, got {text!r}")
+        return name, ()
+    try:
+        opts = algorithms.get(name).resolve_options(given)
+    except ValueError as exc:
+        raise ValueError(f"algorithm {text!r}: {exc}") from None
+    return name, tuple(opts.items())
+
+
+def parse_algorithm(text: str) -> tuple[str, dict]:
+    """``"gf:groups=100,weights=uniform"`` -> ``("gf", {"gf_groups": 100, "gf_margin": 0.1,
+    "gf_weights": "uniform"})``: every option of the registered algorithm of that name,
+    the given ones checked by its option keys (values are TOML literals, as with ``--set``;
+    the algorithm's prefix may be left out), the others at their declared defaults.
+
+    Raises
+    ------
+    ValueError
+        An unknown algorithm, an option it does not take, or a value its key refuses.
+    """
+    if not isinstance(text, str):
+        raise ValueError(f"algorithm must be a string such as \"gf:groups=100\", got "
+                         f"{text!r}")
+    name, opts = _parse_cached(text)
+    return name, dict(opts)
 
 
 # --------------------------------------------------------------------------------------
@@ -285,6 +318,10 @@ class Study:
     name: str = "study"
 
     def __post_init__(self):
+        for name in ("n_visible", "n_faults", "bias", "algorithms"):
+            v = getattr(self, name)
+            if isinstance(v, str) or not isinstance(v, Sequence) or not v:
+                raise ValueError(f"{name} must be a non-empty list, got {v!r}")
         for n in self.n_visible:
             check_int("n_visible", n, 8, 40)
         for k in self.n_faults:
@@ -293,7 +330,12 @@ class Study:
             check_positive("bias", b, allow_zero=True)
         for a in self.algorithms:
             parse_algorithm(a)
+        if len(set(self.algorithms)) != len(self.algorithms):
+            raise ValueError(f"algorithms lists one twice: {list(self.algorithms)}")
         check_int("runs", self.runs, 1)
+        check_int("seed", self.seed, 0, 2**63 - 1)
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise ValueError(f"name must be a non-empty string, got {self.name!r}")
         check_positive("sigma_m", self.sigma_m)
         check_probability("p_fa", self.p_fa)
         check_probability("p_md", self.p_md)
@@ -402,6 +444,12 @@ class _Progress:
                 sys.stderr.write("\n")
             sys.stderr.flush()
 
+    def close(self):
+        """End a bar left unfinished (an interruption) with a newline."""
+        if self.enabled and self._last and self.done < self.total:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
 
 def _ledger_key(study: Study, setting) -> str:
     n, k, b = setting
@@ -478,16 +526,16 @@ def run_study(study: Study, *, workers: int = 1, dask: str | None = None,
             with ledger.open("a") as f:
                 f.write(json.dumps({"key": _ledger_key(study, s), "counts": counts[s]}) + "\n")
 
-    if dask is not None:
-        _run_dask(study, todo, finish, dask, workers)
-    elif workers == 1:
-        for s, c in todo:
-            finish(s, run_chunk(study, s, c))
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futs = {pool.submit(run_chunk, study, s, c): s for s, c in todo}
-            for f in as_completed(futs):
-                finish(futs[f], f.result())
+    try:
+        if dask is not None:
+            _run_dask(study, todo, finish, dask, workers)
+        elif workers == 1:
+            for s, c in todo:
+                finish(s, run_chunk(study, s, c))
+        else:
+            _run_pool(study, todo, finish, workers)
+    finally:
+        bar.close()
     rows = []
     for s in settings:
         n, k, b = s
@@ -505,6 +553,33 @@ def run_study(study: Study, *, workers: int = 1, dask: str | None = None,
         write_csv(res, out / f"{study.name}.csv")
         (out / f"{study.name}.md").write_text(markdown_table(res))
     return res
+
+
+def _ignore_sigint() -> None:
+    """Pool workers leave Ctrl-C to the parent (which stops them): no traceback each."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run_pool(study, todo, finish, workers: int) -> None:
+    """Run the chunks on a process pool; on Ctrl-C (or any error) stop the workers at
+    once instead of waiting for the queued chunks."""
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_sigint)
+    try:
+        futs = {pool.submit(run_chunk, study, s, c): s for s, c in todo}
+        for f in as_completed(futs):
+            finish(futs[f], f.result())
+    except BaseException:
+        # The executor has no public way to stop running work: terminate its processes.
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for p in procs:
+            p.terminate()
+        for p in procs:
+            p.join(timeout=5)
+        raise
+    pool.shutdown()
 
 
 def _run_dask(study, todo, finish, address: str, workers: int):
