@@ -350,13 +350,17 @@ def _cmd_compare(args) -> int:
     if args.algorithms:
         names = [n.strip() for n in args.algorithms.split(",") if n.strip()]
     over = _overrides(args)
+    # Options go to the algorithms that take them (each must belong to at least one of the
+    # compared algorithms); scenario keys to the scenario.
+    opts = {k: v for k, v in over.items() if k not in SCENARIO_KEYS}
+    over = {k: v for k, v in over.items() if k in SCENARIO_KEYS}
     scenario = _recording_scenario(args, over) or load_scenario(args.scenario, **over)
     seed0 = scenario.seed
     top = int(SCENARIO_KEYS["seed"].hi)
     if seed0 + args.seeds - 1 > top:
         raise ValueError(f"--seeds {args.seeds} from seed {seed0} goes past the largest "
                          f"seed {top}; use fewer seeds or a smaller --seed")
-    per_seed = [compare_algorithms(scenario.replace(seed=seed0 + k), names)
+    per_seed = [compare_algorithms(scenario.replace(seed=seed0 + k), names, **opts)
                 for k in range(args.seeds)]
     rows = []
     for j, res in enumerate(per_seed[0]):

@@ -25,7 +25,7 @@ from .algorithms.base import STATUS_UNAVAILABLE, AlgorithmOutput
 from .measure import measure
 from .measure.data import Measurements, Truth
 from .scenario import SCENARIO_KEYS, Scenario, load_scenario
-from .schema import SchemaError
+from .schema import SchemaError, did_you_mean
 from .scoring import Summary, make_table, summarize
 from .scoring.table import ResultTable
 from .sky import build_sky
@@ -161,6 +161,9 @@ def compare_algorithms(s: Scenario | str, names: list[str] | None = None,
         An unknown algorithm name (the message lists the registered ones), or an option
         that none of the algorithms takes.
     """
+    if isinstance(names, str):
+        raise SchemaError(f"names must be a list of algorithm names, got the string {names!r}"
+                          f" (write [{names!r}])")
     names = list(algorithms.names() if names is None else names)
     if not names:
         raise SchemaError("names must list at least one algorithm")
@@ -174,7 +177,8 @@ def compare_algorithms(s: Scenario | str, names: list[str] | None = None,
     takers = {k: [sp.name for sp in specs if k in sp.option_keys] for k in opts}
     for k, who in takers.items():
         if not who:
-            raise SchemaError(f"option {k!r} belongs to none of {', '.join(names)}")
+            raise SchemaError(f"option {k!r} belongs to none of {', '.join(names)}"
+                              f"{did_you_mean(k, [o for sp in specs for o in sp.option_keys])}")
     base = dataclasses.replace(base, options=()).replace(**keys) if keys else \
         dataclasses.replace(base, options=())
     per_alg = []

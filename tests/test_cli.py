@@ -104,3 +104,14 @@ def test_compare_averages_over_seeds_and_rejects_bad_input(capsys):
     assert "algorithm must be one of" in capsys.readouterr().err
     assert main(["compare", "seed000-step", "--seeds", "0"]) == 2
     assert "--seeds must be >= 1" in capsys.readouterr().err
+
+
+def test_compare_gives_each_option_to_the_algorithms_that_take_it(capsys):
+    # max_exclusions is parity's; gf, rs and qv run without it (README example).
+    assert main(["compare", "seed004-multi", "--algorithms", "gf,parity", "--set",
+                 "max_exclusions=3", "--set", "duration_s=130"]) == 0
+    out = capsys.readouterr().out
+    assert "\ngf " in out and "\nparity " in out
+    assert main(["compare", "seed004-multi", "--algorithms", "gf,rs", "--set",
+                 "max_exclusions=3"]) == 2
+    assert "max_exclusions' belongs to none of gf, rs" in capsys.readouterr().err
