@@ -27,8 +27,8 @@ Rules, the same for every control:
 - a value the user types is checked by the key (:meth:`raimcore.schema.Key.coerce`) and
   refused with a one-line :class:`~raimcore.schema.SchemaError` naming the key.
 
-The fault editor's keys (:data:`FAULT_KEYS`) are declared here from the limits
-:class:`~raimcore.measure.faults.Fault` enforces; the fault itself validates its values.
+The fault editor's keys are :data:`raimcore.measure.faults.FAULT_KEYS`, the ones
+:class:`~raimcore.measure.faults.Fault` validates its values with.
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ import math
 from collections.abc import Callable
 from typing import Any
 
-from raimcore.measure.faults import FAULT_KINDS, MAX_BIAS_M, MAX_RATE_MPS
-from raimcore.schema import Key, coerce_float
+from raimcore.measure.faults import FAULT_KEYS
+from raimcore.schema import Key
 
 __all__ = ["KeyControl", "control_kind", "FAULT_KEYS", "SLIDER_MAX_STEPS", "label_of"]
 
@@ -48,30 +48,6 @@ SLIDER_MAX_STEPS = 100
 FLOAT_SLIDER_STEPS = 100
 #: Most decimals a slider or number box is asked to show (its `precision`).
 MAX_DECIMALS = 12
-
-
-def _t1(name: str, value) -> float:
-    """A fault end: a finite time in seconds, or ``inf`` (until the end of the run)."""
-    if isinstance(value, float) and value == math.inf:
-        return value
-    return coerce_float(name, value, unit="s")
-
-
-#: The fault editor's values, with the limits :class:`~raimcore.measure.faults.Fault`
-#: enforces (its own check is the final word). The time sliders' ranges are the run's.
-FAULT_KEYS: dict[str, Key] = {
-    "kind": Key("kind", "choice", "step", "step: a constant bias; ramp: a growing one",
-                choices=FAULT_KINDS, group="faults"),
-    "bias_m": Key("bias_m", "float", 50.0, "step fault bias (negative: shorter range)",
-                  unit="m", lo=-MAX_BIAS_M, hi=MAX_BIAS_M, ui_lo=-500.0, ui_hi=500.0,
-                  ui_step=1.0, group="faults"),
-    "rate_mps": Key("rate_mps", "float", 1.0, "ramp fault rate (negative: shrinking range)",
-                    unit="m/s", lo=-MAX_RATE_MPS, hi=MAX_RATE_MPS, ui_lo=-20.0, ui_hi=20.0,
-                    ui_step=0.1, group="faults"),
-    "t0_s": Key("t0_s", "float", 0.0, "fault start (run time)", unit="s", group="faults"),
-    "t1_s": Key("t1_s", "custom", math.inf, "fault end (run time); at the right end of the "
-                "slider: until the end of the run", unit="s", parse=_t1, group="faults"),
-}
 
 
 def control_kind(key: Key) -> str:

@@ -32,14 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-import raimcore
 from raimcore import algorithms
 from raimcore.geometry import ecef_to_enu
 from raimcore.measure.faults import Fault
 from raimcore.pipeline import ScenarioResult
 from raimcore.pipeline import run_scenario as _run_scenario
 from raimcore.scenario import Scenario, list_scenarios, load_scenario, scenario_keys
-from raimcore.schema import SchemaError
+from raimcore.schema import is_input_error as input_error
 
 from . import panels, teaching
 from .controls import FAULT_KEYS, KeyControl
@@ -53,6 +52,9 @@ NO_OUTPUT = "(none)"
 PLAY_SPEEDS = ("1x", "5x", "20x", "60x")
 PLAY_FPS = 8.0
 PLOT_PANEL_WIDTH = 500
+#: A new fault's size in the editor (and what the inactive size control shows).
+NEW_FAULT_BIAS_M = 50.0
+NEW_FAULT_RATE_MPS = 1.0
 RESULT_CACHE_SIZE = 8  # recent runs kept per session: going back to a setting is instant
 #: The scenario keys the dashboard shows, with their labels (unit from the key).
 SCENARIO_CONTROLS = (("sigma_m", "Noise sigma"), ("noise_corr_s", "Noise correlation"),
@@ -483,9 +485,9 @@ class Session:
                 fc["kind"].show(f.kind)
                 # The inactive size shows what a change of type would give.
                 fc["bias_m"].show(f.bias_m if f.kind == "step" or f.bias_m != 0.0
-                                  else FAULT_KEYS["bias_m"].default)
+                                  else NEW_FAULT_BIAS_M)
                 fc["rate_mps"].show(f.rate_mps if f.kind == "ramp" or f.rate_mps != 0.0
-                                    else FAULT_KEYS["rate_mps"].default)
+                                    else NEW_FAULT_RATE_MPS)
                 fc["t0_s"].show(f.t0_s)
                 fc["t1_s"].show(f.t1_s)
                 for ctl in fc.values():
@@ -567,7 +569,7 @@ class Session:
                         or self._visible_sats())
                 t_mid = float(self.scenario.duration_s) / 3.0
                 fault = Fault(sat=free[0], kind="step", t0_s=float(round(t_mid)),
-                              bias_m=FAULT_KEYS["bias_m"].default)
+                              bias_m=NEW_FAULT_BIAS_M)
             try:
                 new = self.scenario.with_faults(*self.scenario.faults, fault)
             except ValueError as exc:
@@ -784,25 +786,6 @@ class Session:
         self.scheduler.close()
         if self._upload_dir is not None:
             shutil.rmtree(self._upload_dir, ignore_errors=True)
-
-
-def input_error(exc: BaseException) -> bool:
-    """True when ``exc`` is a refused input: a :class:`~raimcore.schema.SchemaError`, or a
-    ``ValueError`` raised by RAIM Studio's own code (a checked value); False when it comes
-    from inside numpy, scipy or the standard library (a bug, whose traceback is wanted).
-    The command line draws the same line."""
-    if isinstance(exc, SchemaError):
-        return True
-    if not isinstance(exc, ValueError):
-        return False
-    tb = exc.__traceback__
-    while tb is not None and tb.tb_next is not None:
-        tb = tb.tb_next
-    if tb is None:
-        return True
-    where = Path(tb.tb_frame.f_code.co_filename).resolve()
-    ours = (Path(raimcore.__file__).resolve().parent, Path(__file__).resolve().parent)
-    return any(root in where.parents for root in ours)
 
 
 def scenario_report_markdown(scenario: Scenario) -> str:

@@ -517,7 +517,9 @@ def main(argv=None) -> int:
         print("raim: interrupted", file=sys.stderr)
         return 130
     except ValueError as exc:
-        if not _raised_by_us(exc):
+        from .schema import is_input_error
+
+        if not is_input_error(exc):
             return _bug(exc)
         print(f"raim: error: {_one_line(exc)}", file=sys.stderr)
         return 2
@@ -535,22 +537,6 @@ def main(argv=None) -> int:
 def _one_line(exc: BaseException) -> str:
     """The message of ``exc`` on one line (a value the user typed may hold a newline)."""
     return " ".join(str(exc).split("\n")).strip() or type(exc).__name__
-
-
-def _raised_by_us(exc: BaseException) -> bool:
-    """True when ``exc`` was raised by RAIM Studio's own code (a checked input), False when
-    it comes from inside numpy, scipy or the standard library (a bug of ours)."""
-    tb = exc.__traceback__
-    last = None
-    while tb is not None:
-        last = tb
-        tb = tb.tb_next
-    if last is None:
-        return True
-    here = Path(__file__).resolve().parent
-    app = here.parent / "app"
-    where = Path(last.tb_frame.f_code.co_filename).resolve()
-    return here in where.parents or app in where.parents
 
 
 def _bug(exc: BaseException) -> int:

@@ -252,7 +252,7 @@ class Scenario:
     mask_deg: float = key(5.0, "elevation mask", unit="deg", lo=-10.0, hi=89.0,
                           ui_lo=0.0, ui_hi=40.0, ui_step=1.0, group="measurements")
     sigma_m: float = key(33.0, "pseudorange noise 1-sigma (a recording: assumed, at the "
-                         "zenith)", unit="m", lo=0.0, lo_open=True, hi=1.0e4, ui_lo=0.1,
+                         "zenith)", unit="m", lo=SIGMA_MIN_M, hi=1.0e4, ui_lo=0.1,
                          ui_hi=50.0, ui_step=0.1, group="measurements")
     noise: str = key("gaussian", "noise distribution", kind="choice", choices=NOISE_KINDS,
                      group="measurements")
@@ -275,8 +275,8 @@ class Scenario:
                                          allowed_text="list of tables",
                                          group="measurements")
     baro: bool = key(False, "add a barometric altimeter", group="measurements")
-    sigma_baro_m: float = key(50.0, "barometric altitude 1-sigma", unit="m", lo=0.0,
-                              lo_open=True, hi=1.0e4, group="measurements")
+    sigma_baro_m: float = key(50.0, "barometric altitude 1-sigma", unit="m",
+                              lo=SIGMA_MIN_M, hi=1.0e4, group="measurements")
     algorithm: str = key("parity", "integrity algorithm (raim list)", kind="custom",
                          parse=_parse_algorithm, allowed_text="a registered algorithm",
                          group="integrity")
@@ -398,11 +398,6 @@ def _check_together(s: Scenario) -> None:
         raise SchemaError(f"systems must name at least one of {', '.join(SYSTEMS)}")
     if len(set(s.systems)) != len(s.systems):
         raise SchemaError(f"systems lists a system twice: {list(s.systems)}")
-    for name in ("sigma_m", "sigma_baro_m"):
-        if getattr(s, name) < SIGMA_MIN_M:
-            raise SchemaError(f"{name} must be at least {SIGMA_MIN_M:g} m, got "
-                              f"{getattr(s, name):g} (a smaller sigma overflows the "
-                              "weights 1 / sigma^2)")
     if s.duration_s / s.step_s > MAX_EPOCHS:
         raise SchemaError(f"duration_s / step_s must be at most {MAX_EPOCHS:,} epochs, got "
                           f"{s.duration_s:g} / {s.step_s:g}")

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Key", "SchemaError", "key", "option", "did_you_mean", "coerce_float",
+__all__ = ["Key", "SchemaError", "key", "option", "did_you_mean", "is_input_error", "coerce_float",
            "coerce_int", "coerce_bool", "coerce_str"]
 
 #: Value kinds a :class:`Key` may have.
@@ -45,6 +45,27 @@ def _show(value) -> str:
         value = value.item()
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+def is_input_error(exc: BaseException) -> bool:
+    """True when ``exc`` is a refused input: a :class:`SchemaError`, or a ``ValueError``
+    raised by RAIM Studio's own code (``raimcore`` or ``app``: a checked value); False when
+    it comes from inside numpy, scipy or the standard library (a bug, whose traceback is
+    wanted). The command line and the dashboard draw the line here."""
+    if isinstance(exc, SchemaError):
+        return True
+    if not isinstance(exc, ValueError):
+        return False
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    if tb is None:
+        return True
+    from pathlib import Path
+
+    core = Path(__file__).resolve().parent
+    where = Path(tb.tb_frame.f_code.co_filename).resolve()
+    return core in where.parents or (core.parent / "app") in where.parents
 
 
 def did_you_mean(name: str, candidates: Iterable[str]) -> str:

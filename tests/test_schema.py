@@ -104,7 +104,7 @@ def test_integers_are_whole():
 
 def test_range_messages_name_the_interval_and_unit():
     k = scenario_keys()["sigma_m"]
-    with pytest.raises(SchemaError, match=r"sigma_m must be in \(0, 10000\] m, got 0"):
+    with pytest.raises(SchemaError, match=r"sigma_m must be in \[0.001, 10000\] m, got 0"):
         k.coerce(0)
 
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..schema import SchemaError, coerce_float, coerce_str
+from ..schema import Key, SchemaError, coerce_float
 
 __all__ = ["Fault", "fault_biases", "parse_fault"]
 
@@ -22,6 +22,31 @@ FAULT_FIELDS = ("sat", "kind", "t0_s", "t1_s", "bias_m", "rate_mps")
 
 def _is_inf(x) -> bool:
     return isinstance(x, float | int) and not isinstance(x, bool) and x == math.inf
+
+
+def _t1(name: str, value) -> float:
+    """A fault end: a finite time in seconds, or ``inf`` (until the end of the run)."""
+    if _is_inf(value):
+        return math.inf
+    return coerce_float(name, value, unit="s")
+
+
+#: The keys of one fault (a ``[[faults]]`` table), declared once: :class:`Fault` checks
+#: its values with them and the dashboard's fault editor is built from them.
+FAULT_KEYS: dict[str, Key] = {
+    "kind": Key("kind", "choice", "step", "step: a constant bias; ramp: a growing one",
+                choices=FAULT_KINDS, group="faults"),
+    "bias_m": Key("bias_m", "float", 0.0, "step fault bias (negative: shorter range)",
+                  unit="m", lo=-MAX_BIAS_M, hi=MAX_BIAS_M, ui_lo=-500.0, ui_hi=500.0,
+                  ui_step=1.0, group="faults"),
+    "rate_mps": Key("rate_mps", "float", 0.0, "ramp fault rate (negative: shrinking range)",
+                    unit="m/s", lo=-MAX_RATE_MPS, hi=MAX_RATE_MPS, ui_lo=-20.0, ui_hi=20.0,
+                    ui_step=0.1, group="faults"),
+    "t0_s": Key("t0_s", "float", 0.0, "fault start (run time)", unit="s", group="faults"),
+    "t1_s": Key("t1_s", "custom", math.inf, "fault end (run time); inf or absent: until the "
+                "end of the run", unit="s", parse=_t1, allowed_text="number or inf",
+                group="faults"),
+}
 
 
 @dataclass(frozen=True)
@@ -44,17 +69,9 @@ class Fault:
         if not isinstance(self.sat, str) or not self.sat.strip():
             raise SchemaError(f"fault sat must be a satellite name such as 'G10', got "
                               f"{self.sat!r}")
-        coerce_str("fault kind", self.kind, FAULT_KINDS)
-        set_ = object.__setattr__
-        set_(self, "t0_s", coerce_float(f"fault {self.sat} t0_s", self.t0_s, unit="s"))
-        t1 = self.t1_s
-        if not (_is_inf(t1)):
-            t1 = coerce_float(f"fault {self.sat} t1_s", t1, unit="s")
-        set_(self, "t1_s", math.inf if _is_inf(t1) else t1)
-        set_(self, "bias_m", coerce_float(f"fault {self.sat} bias_m", self.bias_m,
-                                          -MAX_BIAS_M, MAX_BIAS_M, unit="m"))
-        set_(self, "rate_mps", coerce_float(f"fault {self.sat} rate_mps", self.rate_mps,
-                                            -MAX_RATE_MPS, MAX_RATE_MPS, unit="m/s"))
+        for name, k in FAULT_KEYS.items():
+            where = "fault kind" if name == "kind" else f"fault {self.sat} {name}"
+            object.__setattr__(self, name, k.coerce(getattr(self, name), where))
         if self.t1_s <= self.t0_s:
             raise SchemaError(f"fault {self.sat} t1_s must be after t0_s ({self.t0_s:g} s), "
                               f"got {self.t1_s:g}")
