@@ -11,7 +11,7 @@ import re
 
 import numpy as np
 
-from raimcore.scoring import Summary, in_fault_memory
+from raimcore.scoring import Summary
 
 from .figures import RunView
 
@@ -136,14 +136,11 @@ def verdict(view: RunView, summary: Summary, p_fa: float | None = None) -> str:
     if fa.k:
         lines.append(f"{_plural(fa.k, 'alarm')} while no fault was on ({fa.k} of {fa.n} "
                      f"fault-free epochs).")
-    if summary.fault_memory_epochs:
-        # Windowed or filtering algorithms still hold a fault for `memory_epochs` after it
-        # ends: their alarms there are not false alarms (the summary leaves them out).
-        memory = in_fault_memory(np.any(view.faulted, axis=1), view.column("memory_epochs"))
-        n_mem = int(np.sum(alarm & memory))
-        if n_mem:
-            lines.append(f"{_plural(n_mem, 'alarm')} just after the fault ended, while it "
-                         f"was still in the algorithm's window.")
+    # Windowed or filtering algorithms still hold a fault for `memory_epochs` after it ends:
+    # their alarms there are not false alarms (the summary counts them apart).
+    if summary.fault_memory_alarms:
+        lines.append(f"{_plural(summary.fault_memory_alarms, 'alarm')} just after the fault "
+                     f"ended, while it was still in the algorithm's window.")
     return " ".join([*lines, *tail])
 
 

@@ -66,6 +66,10 @@ def test_summary_leaves_the_window_after_a_fault_out_of_false_alarms(runs):
     assert ekf["fault_memory_epochs"] == 0
     n = ekf["epochs"] - ekf["faulted_epochs"]
     assert ekf["false_alarm_n"] == n and sm["false_alarm_n"] == n - 29
+    # Alarms inside the window are counted apart, not as false alarms.
+    t = runs["pf-llr", 0].table
+    memory = in_fault_memory(t["faulty_truth"] != "", t["memory_epochs"])
+    assert sm.fault_memory_alarms == int(np.sum(t["alarm"] & memory)) > 0
 
 
 def test_in_fault_memory():

@@ -68,7 +68,8 @@ class Summary:
     """Headline numbers of one run; every rate is a :class:`Rate` (counts + interval).
 
     Epoch counts: ``epochs`` in all, ``unavailable_epochs``, ``detect_only_epochs``,
-    ``faulted_epochs`` (a fault acts on a used satellite), ``fault_memory_epochs``.
+    ``faulted_epochs`` (a fault acts on a used satellite), ``fault_memory_epochs`` and the
+    alarms raised in them (``fault_memory_alarms``: not false alarms).
     Rates: ``false_alarm`` over available fault-free epochs (outside fault memory),
     ``detection`` and ``correct_isolation`` over available faulted epochs (isolation: only
     where the algorithm can isolate, i.e. not detect-only), ``pl_availability`` over all
@@ -86,6 +87,7 @@ class Summary:
     faulted_epochs: int
     fault_memory_epochs: int
     false_alarm: Rate
+    fault_memory_alarms: int = 0
     detection: Rate | None = None
     correct_isolation: Rate | None = None
     first_fault_t_s: float | None = None
@@ -244,7 +246,8 @@ def summarize(table: ResultTable, notes=()) -> Summary:
         epochs=len(table), unavailable_epochs=int((~available).sum()),
         detect_only_epochs=int(detect_only.sum()), faulted_epochs=int(faulted.sum()),
         fault_memory_epochs=int(after.sum()),
-        false_alarm=Rate(int(alarm[nominal].sum()), int(nominal.sum())))
+        false_alarm=Rate(int(alarm[nominal].sum()), int(nominal.sum())),
+        fault_memory_alarms=int((alarm & after & available).sum()))
     if faulted.any():
         fa = faulted & available
         can_iso = fa & ~detect_only
