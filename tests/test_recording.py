@@ -194,3 +194,13 @@ def test_real_errors_are_time_correlated_and_pf_llr_needs_that_in_its_threshold(
         Fault("G05", "ramp", t0_s=3600.0, rate_mps=0.5)))
     assert ramp.summary["first_alarm_t_s"] <= 3600.0 + 120.0
     assert ramp.summary["correct_isolation_rate"] >= 0.9
+
+
+def test_measured_error_note_is_computed_before_any_fault(esbc):
+    """The recording's measured-error note describes its real errors: an injected fault
+    (here 500 m on G05 for the whole recording) does not change it."""
+    s = recording_scenario(*esbc, duration_s=1800.0)
+    clean = run_scenario(s).summary.notes
+    faulted = run_scenario(s.with_faults(Fault("G05", "step", t0_s=0.0, bias_m=500.0)))
+    note = [n for n in clean if n.startswith("measured pseudorange errors")]
+    assert note and note[0] in faulted.summary.notes

@@ -73,7 +73,8 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
                   fault_bias_m=bias, used=used)
     if sky.pr_m is not None:  # a recording: measure its errors before any fault is added
         clean_meas = Measurements(**{**meas.__dict__, "pr_m": np.where(used, clean, np.nan)})
-        note = _error_note(clean_meas, truth, s)
+        no_fault = Truth(**{**truth.__dict__, "fault_bias_m": np.zeros_like(bias)})
+        note = _error_note(clean_meas, no_fault, s)
         if note:
             notes.append(note)
     notes += fault_notes(s.faults, truth, names, t)
