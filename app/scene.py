@@ -1,22 +1,52 @@
 """The 3D scene: Earth with continents, orbits, satellites by state, lines of sight, the
-receiver with its trajectory, local horizon and elevation-mask cone.
+receiver with its trajectory, local horizon and elevation-mask cone, and the injected
+fault drawn on the faulty satellite's line of sight.
 
 Scene units are megametres (``SCALE_PER_M = 1e-6``) in the ECEF frame, ``+z`` up: the
-Earth's radius is 6.4 units, GPS orbits 26.6, geostationary BeiDou 42.2, so everything fits
-one view. The pure geometry builders come first (testable without a server); the
-:class:`SkyScene` class owns one client's scene nodes and updates them.
+Earth's radius is 6.4 units, GPS orbits 26.6, geostationary BeiDou 42.2. Arrays follow the
+package rule, batch axes first and components last (``(S, 3)`` satellites at one epoch).
+
+The scene explains itself:
+
+- **Labels.** A satellite is labelled only while it is above the receiver's horizon
+  (elevation >= 0 at the shown epoch: the sky the receiver has, the same sky as the sky
+  plot); the labels are depth-tested, so the Earth hides the label of a satellite behind
+  it from whatever side the user turns the camera (the GPU decides, per frame, with no
+  round trip to the server).
+- **Legend.** :func:`legend_markdown` explains the colours, the lines and the two surfaces
+  around the receiver; :meth:`SkyScene.attach_legend` keeps a GUI Markdown handle in step
+  with the run (mask angle, whether a fault is drawn). The surfaces also carry their own
+  small labels in the scene ("horizon", "mask 5°").
+- **Framing.** :func:`camera_pose` fits the sphere of the largest orbit in the camera's
+  field of view, looking at the Earth from above the receiver; :class:`SkyScene` re-aims
+  a client's camera when a run changes that framing (GPS to GPS + BeiDou GEO/IGSO, another
+  site), and leaves a camera the user turned alone otherwise.
+- **Fault cue.** A faulted satellite (truth: a bias acts on a used satellite) gets a thick
+  line of sight and a magenta segment from the satellite to where its biased pseudorange
+  puts it along the line of sight, with a ring there; its label gives the bias. The length
+  is not to scale (a bias of metres is invisible at 20,000 km): :func:`bias_cue_length`.
+
+The pure builders come first (testable without a server); :class:`SkyScene` owns one
+client's scene nodes and updates them.
 """
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from raimcore.constants import OMEGA_E_RADPS, WGS84_A_M, WGS84_B_M
-from raimcore.geometry import ecef_to_geodetic, enu_rotation, geodetic_to_ecef
+from raimcore.constants import (
+    BDS_GEO_RADIUS_M,
+    GPS_SQRT_A,
+    OMEGA_E_RADPS,
+    WGS84_A_M,
+    WGS84_B_M,
+)
+from raimcore.geometry import az_el, ecef_to_geodetic, enu_rotation, geodetic_to_ecef
 
 from .figures import STATE_COLORS, STATE_ORDER
 
@@ -26,8 +56,37 @@ OCEAN_RGB = (38, 84, 150)
 LAND_RGB = (96, 160, 80)
 SAT_RADIUS = 0.45  # scene units (450 km: exaggerated so satellites are visible)
 RX_RADIUS = 0.16
-HORIZON_RADIUS = 3.0
-CONE_SLANT = 6.0
+HORIZON_RADIUS = 4.0
+CONE_SLANT = 3.4  # the cone's rim inside the disc: the labels on both rims stay clear
+# Colours of the scene's own elements (satellite states use figures.STATE_COLORS).
+ORBIT_RGB = (170, 170, 200)
+RX_RGB = (255, 220, 0)
+HORIZON_RGB = (235, 235, 235)
+HORIZON_OPACITY = 0.35
+MASK_RGB = (140, 80, 230)  # violet: apart from every state colour (red is "excluded")
+MASK_OPACITY = 0.22
+BIAS_RGB = (235, 40, 210)  # magenta: the fault cue
+#: A satellite nearer the Earth's centre than this (m) has no position (a recording's
+#: satellite without a usable ephemeris is parked at the centre): it is not drawn.
+MIN_DRAWN_RADIUS_M = 7.0e6
+#: Fault cue length (scene units = Mm) per decade of bias: 1 m -> 0.36, 10 m -> 1.2,
+#: 100 m -> 2.4, 1 km -> 3.6; at most BIAS_CUE_MAX.
+BIAS_CUE_PER_DECADE = 1.2
+BIAS_CUE_MAX = 4.5
+#: Nominal largest orbit radius (m) of each system, for framing before a run exists.
+ORBIT_RADIUS_M = {
+    "GPS": GPS_SQRT_A**2,  # 26,560 km: GPS SPS PS 5th ed., table 3.1-1
+    "BDS": BDS_GEO_RADIUS_M,  # 42,164 km: BeiDou GEO and IGSO
+}
+#: Camera framing: the largest orbit's sphere, this much enlarged (labels above the
+#: satellites), fits the narrower half-angle of the view.
+FRAME_MARGIN = 1.15
+DEFAULT_FOV_RAD = np.radians(75.0)  # viser's and three.js's default vertical field of view
+#: Widest width / height of the 3D view assumed for framing: viser reports the browser
+#: window's size, not the part of it the docked side panels leave to the 3D view (752 x
+#: 1000 px of a 1600 x 1000 window; at least half of 1000 x 700).
+VIEW_ASPECT = 0.7
+VIEW_TILT_DEG = 20.0  # the camera sits this much north of the receiver's zenith
 
 
 @lru_cache(maxsize=1)
@@ -140,12 +199,229 @@ def mask_cone(mask_deg: float, slant: float = CONE_SLANT,
     return verts, faces
 
 
+
+def rim_segments(radius: float, el_deg: float = 0.0, n: int = 72) -> np.ndarray:
+    """The rim of the horizon disc (``el_deg = 0``) or of the mask cone (slant ``radius``
+    at elevation ``el_deg``) as ``(n, 2, 3)`` line segments in ENU, scene units."""
+    el = np.radians(el_deg)
+    ang = np.linspace(0.0, 2.0 * np.pi, n + 1)
+    ring = radius * np.stack([np.cos(el) * np.sin(ang), np.cos(el) * np.cos(ang),
+                              np.full(n + 1, np.sin(el))], -1)
+    return np.stack([ring[:-1], ring[1:]], axis=1).astype(np.float32)
+
+
+# -- what the scene shows at one epoch -------------------------------------------------------
+
+def has_position(pos_sv_ecef_m: np.ndarray) -> np.ndarray:
+    """(..., S) bool: the satellite has a position to draw (not parked at the centre)."""
+    with np.errstate(invalid="ignore"):
+        return np.linalg.norm(pos_sv_ecef_m, axis=-1) > MIN_DRAWN_RADIUS_M
+
+
+def labelled_satellites(pos_sv_ecef_m: np.ndarray, pos_rx_ecef_m: np.ndarray) -> np.ndarray:
+    """Which satellites carry a label: those with a position and above the receiver's
+    horizon (elevation >= 0), i.e. in the receiver's sky.
+
+    The rule is per epoch and independent of the camera; the labels are also
+    depth-tested in the browser, so the Earth hides a label behind it from any viewpoint.
+
+    Parameters
+    ----------
+    pos_sv_ecef_m : (..., S, 3) satellite positions (m).
+    pos_rx_ecef_m : (..., 3) receiver position (m).
+
+    Returns
+    -------
+    (..., S) bool.
+    """
+    _, el_rad = az_el(pos_sv_ecef_m, pos_rx_ecef_m)
+    with np.errstate(invalid="ignore"):
+        return has_position(pos_sv_ecef_m) & (el_rad >= 0.0)
+
+
+def bias_cue_length(bias_m: np.ndarray) -> np.ndarray:
+    """Signed length (scene units) of the fault cue for a pseudorange bias ``bias_m``.
+
+    ``sign(b) * BIAS_CUE_PER_DECADE * log10(1 + |b| / 1 m)``, at most ``BIAS_CUE_MAX``:
+    a logarithmic scale, so a 1 m bias still shows (0.36 Mm) and a 1 km one (3.6 Mm) does
+    not reach across the sky. Positive: the pseudorange is too long, the satellite
+    appears farther along its line of sight.
+    """
+    b = np.asarray(bias_m, dtype=float)
+    return np.sign(b) * np.minimum(BIAS_CUE_PER_DECADE * np.log10(1.0 + np.abs(b)),
+                                   BIAS_CUE_MAX)
+
+
+def fault_cue(pos_sv_ecef_m: np.ndarray, pos_rx_ecef_m: np.ndarray, bias_m: np.ndarray,
+              faulted: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fault cue at one epoch: for each faulted satellite, a segment from the
+    satellite to where its biased pseudorange puts it along the line of sight.
+
+    Parameters
+    ----------
+    pos_sv_ecef_m : (S, 3) satellite positions (m).
+    pos_rx_ecef_m : (3,) receiver position (m).
+    bias_m : (S,) injected pseudorange bias (m).
+    faulted : (S,) bool, a fault acts on a used satellite.
+
+    Returns
+    -------
+    idx : (K,) indices of the faulted satellites that have a position.
+    start, end : (K, 3) scene units: the satellite and its apparent position
+        (``start + bias_cue_length(bias) * u``, ``u`` the unit line of sight).
+    """
+    idx = np.flatnonzero(np.asarray(faulted, dtype=bool) & has_position(pos_sv_ecef_m))
+    sv = pos_sv_ecef_m[idx] * SCALE_PER_M
+    los = sv - pos_rx_ecef_m * SCALE_PER_M
+    u = los / np.linalg.norm(los, axis=-1, keepdims=True)
+    end = sv + bias_cue_length(bias_m[idx])[:, None] * u
+    return idx, sv, end
+
+
+def _format_bias(bias_m: float) -> str:
+    return f"{bias_m:+.0f} m" if abs(bias_m) >= 10.0 else f"{bias_m:+.1f} m"
+
+
+def label_text(name: str, state: str, bias_m: float, faulted: bool) -> str:
+    """A satellite's label: its name, and for a faulty or excluded one its state and the
+    injected bias (if any) at the shown epoch."""
+    if faulted and state == "faulty":
+        return f"{name} faulty, bias {_format_bias(bias_m)}"
+    if faulted and state == "excluded":
+        return f"{name} excluded (bias {_format_bias(bias_m)})"
+    if state == "excluded":
+        return f"{name} excluded"
+    return name
+
+
+# -- camera ----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Where a camera looks from (scene units): ``position``, ``look_at``, ``up`` (3,)
+    and the clipping distances ``near``, ``far``."""
+
+    position: np.ndarray
+    look_at: np.ndarray
+    up: np.ndarray
+    near: float
+    far: float
+
+
+def largest_orbit_radius_m(pos_sv_ecef_m: np.ndarray) -> float:
+    """Largest distance of a drawn satellite from the Earth's centre (m), read at the
+    first, middle and last epochs of ``(E, S, 3)`` positions (orbits are near-circular);
+    the GPS radius when no satellite has a position."""
+    pos = np.asarray(pos_sv_ecef_m, dtype=float)
+    pos = pos[np.unique([0, pos.shape[0] // 2, pos.shape[0] - 1])] if pos.ndim == 3 else pos
+    r = np.linalg.norm(pos, axis=-1)
+    r = r[np.isfinite(r) & (r > MIN_DRAWN_RADIUS_M)]
+    return float(r.max()) if r.size else float(ORBIT_RADIUS_M["GPS"])
+
+
+def camera_pose(pos_rx_ecef_m: np.ndarray, r_orbit_m: float,
+                fov_rad: float = DEFAULT_FOV_RAD, aspect: float = VIEW_ASPECT,
+                margin: float = FRAME_MARGIN) -> CameraPose:
+    """A camera looking at the Earth's centre from above the receiver (tilted
+    ``VIEW_TILT_DEG`` north, kept within 65 deg of the equator so that ``+z`` stays a
+    usable up direction), far enough that the sphere of radius ``margin * r_orbit_m``
+    fits the narrower half-angle of the view.
+
+    Parameters
+    ----------
+    pos_rx_ecef_m : (3,) receiver position (m).
+    r_orbit_m : largest orbit radius to fit (m), above the Earth's surface.
+    fov_rad : vertical field of view (rad), in (0, pi).
+    aspect : view width / height, > 0.
+
+    Raises
+    ------
+    ValueError
+        If an argument is outside its range.
+    """
+    _check_range("r_orbit_m", r_orbit_m, WGS84_A_M, 1e9)
+    _check_range("fov_rad", fov_rad, 1e-3, np.pi - 1e-3)
+    _check_range("aspect", aspect, 1e-3, 1e3)
+    half_v = 0.5 * fov_rad
+    half = min(half_v, float(np.arctan(aspect * np.tan(half_v))))
+    radius = margin * r_orbit_m * SCALE_PER_M
+    dist = radius / np.sin(half)  # the sphere is tangent to the view's narrower edges
+    lat, lon, _ = ecef_to_geodetic(np.asarray(pos_rx_ecef_m, dtype=float))
+    view_lat = np.clip(float(lat) + np.radians(VIEW_TILT_DEG), -np.radians(65.0),
+                       np.radians(65.0))
+    direction = np.array([np.cos(view_lat) * np.cos(lon), np.cos(view_lat) * np.sin(lon),
+                          np.sin(view_lat)])
+    return CameraPose(position=dist * direction, look_at=np.zeros(3),
+                      up=np.array([0.0, 0.0, 1.0]), near=0.05, far=dist + 2.0 * radius)
+
+
+def _check_range(name: str, value: float, lo: float, hi: float) -> None:
+    if not (np.isfinite(value) and lo <= value <= hi):
+        raise ValueError(f"{name} must be in [{lo:g}, {hi:g}], got {value!r}")
+
+
+def aim_camera(camera, pose: CameraPose) -> None:
+    """Apply ``pose`` to a viser camera: a client's ``CameraHandle`` (which must have
+    reported its state) or the server's ``initial_camera``."""
+    camera.position = tuple(pose.position)
+    camera.look_at = tuple(pose.look_at)  # after position: a client camera keeps its aim
+    if hasattr(camera, "up_direction"):  # CameraHandle
+        camera.up_direction = tuple(pose.up)
+    else:  # InitialCameraConfig
+        camera.up = tuple(pose.up)
+    camera.near = pose.near
+    camera.far = pose.far
+
+
+def _camera_ready(camera) -> bool:
+    """A client's camera can be read and moved once its browser has reported it."""
+    try:
+        return camera.update_timestamp > 0.0
+    except AssertionError:  # viser asserts on reads before the first report
+        return False
+
+
+def _css(rgb: tuple[int, int, int]) -> str:
+    return f"rgb({rgb[0]},{rgb[1]},{rgb[2]})"
+
+
+def _swatch(rgb: tuple[int, int, int], glyph: str = "●") -> str:
+    # A thin dark outline keeps the near-white horizon swatch visible on a white panel.
+    return (f'<span style="color:{_css(rgb)};font-size:1.2em;'
+            f'text-shadow:0 0 1px rgb(90,90,90)">{glyph}</span>')
+
+
+def legend_markdown(mask_deg: float) -> str:
+    """The 3D view's legend as Markdown (with inline HTML colour swatches): satellite
+    colours, lines of sight, the fault cue, the horizon disc and the mask cone at
+    ``mask_deg``, orbits and the receiver."""
+    states = " · ".join(f"{_swatch(STATE_COLORS[s])} {s}" for s in STATE_ORDER)
+    return (
+        "**3D view.** Satellites by state, lines of sight from the receiver alike: "
+        f"{states}.\n\n"
+        f"- {_swatch(BIAS_RGB, '━')} a fault's bias along its line of sight, to the "
+        f"{_swatch(BIAS_RGB)} where the pseudorange puts the satellite (log scale: 100 m "
+        f"draws {float(bias_cue_length(100.0)):.1f} Mm).\n"
+        f"- {_swatch(HORIZON_RGB, '■')} horizon (elevation 0°): satellites under it are "
+        "out of the receiver's sky and unlabelled.\n"
+        f"- {_swatch(MASK_RGB, '■')} mask cone at {mask_deg:g}°: satellites under it are "
+        "not used.\n"
+        f"- {_swatch(RX_RGB)} receiver and its track · {_swatch(ORBIT_RGB, '━')} orbits. "
+        "Labels behind the Earth are hidden.\n"
+    )
+
+
+# -- one client's scene ------------------------------------------------------------------------
+
 @dataclass(frozen=True)
 class SceneRun:
     """What the scene needs from one run (E epochs, S satellites).
 
     pos_sv_ecef_m : (E, S, 3); pos_rx_ecef_m : (E, 3); t_s : (E,); sat_names : (S,);
-    state : (E, S) int index into ``STATE_ORDER``; mask_deg : elevation mask (deg).
+    state : (E, S) int index into ``STATE_ORDER``; mask_deg : elevation mask (deg);
+    fault_bias_m : (E, S) injected pseudorange bias (m), or None (no fault cue);
+    faulted : (E, S) bool, a fault acts on a used satellite
+    (:attr:`raimcore.measure.Truth.faulted`), or None.
     """
 
     t_s: np.ndarray
@@ -154,6 +430,8 @@ class SceneRun:
     pos_rx_ecef_m: np.ndarray
     state: np.ndarray
     mask_deg: float
+    fault_bias_m: np.ndarray | None = None
+    faulted: np.ndarray | None = None
 
     def geometry_key(self) -> tuple:
         """Identity of the geometry: a new key means satellites, times or trajectory
@@ -167,21 +445,45 @@ def _rgb_array(states: np.ndarray) -> np.ndarray:
     return table[states]
 
 
-class SkyScene:
-    """One client's 3D scene. ``scene`` is ``client.scene`` (or ``server.scene``)."""
+#: Re-aim the camera when the largest orbit changes by more than this fraction (GPS 26.6
+#: -> BeiDou GEO 42.2 Mm re-aims; GPS -> BeiDou MEO 27.9 Mm does not) or the receiver
+#: moves more than REFRAME_SITE_DEG over the Earth.
+REFRAME_ORBIT_FRACTION = 0.15
+REFRAME_SITE_DEG = 5.0
 
-    def __init__(self, scene) -> None:
+
+class SkyScene:
+    """One client's 3D scene.
+
+    Parameters
+    ----------
+    scene : ``client.scene`` (or ``server.scene``).
+    camera : the client's ``CameraHandle``, re-aimed when a run changes the framing
+        (:func:`camera_pose`); None leaves the camera alone.
+    """
+
+    def __init__(self, scene, camera=None) -> None:
         self.scene = scene
+        self.camera = camera
         self._key: tuple | None = None
         self._sat_frames: list = []
         self._sat_balls: list = []
         self._sat_labels: list = []
         self._sat_state: np.ndarray | None = None
+        self._label_text: list[str] = []
         self._run: SceneRun | None = None
         self._mask_deg: float | None = None
         self.i_epoch = 0
         self._nodes: dict = {}
+        self._cue_names: tuple[str, ...] = ()
+        self._cue_segments = (np.zeros((0, 3)), np.zeros((0, 3)))
+        self._legend = None
+        self._framed: tuple[np.ndarray, float] | None = None  # (receiver unit vector, r)
+        self._pending_pose: tuple[np.ndarray, float] | None = None
+        self._camera_lock = threading.Lock()
         self._build_static()
+        if camera is not None:
+            camera.on_update(self._on_camera_update)
 
     # Static world: lights, Earth.
     def _build_static(self) -> None:
@@ -198,66 +500,102 @@ class SkyScene:
         sc.add_mesh_simple("/earth/land", verts, faces, color=LAND_RGB, flat_shading=False,
                            cast_shadow=False, receive_shadow=False)
 
+    def attach_legend(self, handle) -> None:
+        """Keep ``handle`` (a GUI Markdown handle) showing :func:`legend_markdown` for
+        the shown run."""
+        self._legend = handle
+        handle.content = legend_markdown(self._mask_deg if self._mask_deg is not None
+                                         else 0.0)
+
     def _clear_dynamic(self) -> None:
         for h in self._sat_frames:
             h.remove()
         self._sat_frames, self._sat_balls, self._sat_labels = [], [], []
-        for name in ("/orbits", "/rx", "/trajectory", "/los"):
+        self._label_text = []
+        for name in ("/orbits", "/rx", "/trajectory", "/los", "/fault/los", "/fault/bias",
+                     "/fault/ghost"):
             handle = self._nodes.pop(name, None)
             if handle is not None:
                 handle.remove()
-        self._nodes.pop("/rx/mask_cone", None)
+        self._nodes.pop("/rx/mask_cone", None)  # removed with its parent /rx
+        self._cue_names = ()
+
+    def _build_geometry(self, run: SceneRun) -> None:
+        sc = self.scene
+        if run.t_s.shape[0] >= 2:
+            rings = orbit_rings(run.pos_sv_ecef_m, run.t_s)
+            seg = np.stack([rings[:, :-1], rings[:, 1:]], axis=2).reshape(-1, 2, 3)
+            seg = seg[np.isfinite(seg).all(axis=(1, 2))]
+            self._nodes["/orbits"] = sc.add_line_segments(
+                "/orbits", seg, ORBIT_RGB, thickness=1.2, thickness_units="screen")
+        traj = run.pos_rx_ecef_m * SCALE_PER_M
+        if np.ptp(traj, axis=0).max() > 1e-6:
+            seg = np.stack([traj[:-1], traj[1:]], axis=1)
+            self._nodes["/trajectory"] = sc.add_line_segments(
+                "/trajectory", seg, RX_RGB, thickness=3.0, thickness_units="screen")
+        self._nodes["/rx"] = sc.add_frame("/rx", show_axes=False)
+        sc.add_icosphere("/rx/marker", radius=RX_RADIUS, color=RX_RGB,
+                         cast_shadow=False, receive_shadow=False)
+        v, f = horizon_disk()
+        sc.add_mesh_simple("/rx/horizon", v, f, color=HORIZON_RGB, opacity=HORIZON_OPACITY,
+                           side="double", cast_shadow=False, receive_shadow=False)
+        sc.add_line_segments("/rx/horizon_rim", rim_segments(HORIZON_RADIUS), HORIZON_RGB,
+                             thickness=1.5, thickness_units="screen")
+        # The surfaces name themselves: "horizon" on the disc's west rim, the mask on the
+        # cone's east rim (both lifted a little: a depth-tested label must not dip into the
+        # translucent surfaces, which write depth like any mesh).
+        sc.add_label("/rx/horizon_label", "horizon", position=(-HORIZON_RADIUS, 0.0, 0.2),
+                     anchor="center-right", depth_test=True, font_screen_scale=0.8)
+        sc.add_label("/rx/label", "receiver", position=(0.0, 0.0, 1.0),
+                     anchor="bottom-center", depth_test=True)
+        self._mask_deg = None
+        for name in run.sat_names:
+            frame = sc.add_frame(f"/sats/{name}", show_axes=False)
+            ball = sc.add_icosphere(f"/sats/{name}/ball", radius=SAT_RADIUS,
+                                    color=STATE_COLORS["used"], subdivisions=2,
+                                    cast_shadow=False, receive_shadow=False)
+            # Depth-tested: the Earth hides the label of a satellite behind it.
+            label = sc.add_label(f"/sats/{name}/label", name, position=(0, 0, 0.6),
+                                 anchor="bottom-center", depth_test=True)
+            self._sat_frames.append(frame)
+            self._sat_balls.append(ball)
+            self._sat_labels.append(label)
+            self._label_text.append(name)
+        self._sat_state = None
+
+    def _build_mask(self, mask_deg: float) -> None:
+        sc = self.scene
+        v, f = mask_cone(mask_deg)
+        self._nodes["/rx/mask_cone"] = sc.add_mesh_simple(
+            "/rx/mask_cone", v, f, color=MASK_RGB, opacity=MASK_OPACITY, side="double",
+            cast_shadow=False, receive_shadow=False)
+        el = max(mask_deg, 0.5)
+        sc.add_line_segments("/rx/mask_rim", rim_segments(CONE_SLANT, el), MASK_RGB,
+                             thickness=1.5, thickness_units="screen")
+        e = np.radians(el)
+        sc.add_label("/rx/mask_label", f"mask {mask_deg:g}°",
+                     position=(CONE_SLANT * np.cos(e), 0.0, CONE_SLANT * np.sin(e) + 0.2),
+                     anchor="center-left", depth_test=True, font_screen_scale=0.8)
+        self._mask_deg = mask_deg
+        if self._legend is not None:
+            self._legend.content = legend_markdown(mask_deg)
 
     def set_run(self, run: SceneRun) -> None:
-        """Show a new run; rebuilds geometry only when satellites or trajectory changed."""
-        sc = self.scene
-        key = run.geometry_key()
-        rebuilt = key != self._key
-        if rebuilt:
+        """Show a new run; rebuilds geometry only when satellites or trajectory changed,
+        re-aims the camera only when the framing changed."""
+        if run.geometry_key() != self._key:
             self._clear_dynamic()
-            self._key = key
-            if run.t_s.shape[0] >= 2:
-                rings = orbit_rings(run.pos_sv_ecef_m, run.t_s)
-                seg = np.stack([rings[:, :-1], rings[:, 1:]], axis=2).reshape(-1, 2, 3)
-                seg = seg[np.isfinite(seg).all(axis=(1, 2))]
-                self._nodes["/orbits"] = sc.add_line_segments(
-                    "/orbits", seg, (170, 170, 200), thickness=1.2, thickness_units="screen")
-            traj = run.pos_rx_ecef_m * SCALE_PER_M
-            if np.ptp(traj, axis=0).max() > 1e-6:
-                seg = np.stack([traj[:-1], traj[1:]], axis=1)
-                self._nodes["/trajectory"] = sc.add_line_segments(
-                    "/trajectory", seg, (255, 220, 0), thickness=3.0, thickness_units="screen")
-            self._nodes["/rx"] = sc.add_frame("/rx", show_axes=False)
-            sc.add_icosphere("/rx/marker", radius=RX_RADIUS, color=(255, 220, 0),
-                             cast_shadow=False, receive_shadow=False)
-            v, f = horizon_disk()
-            sc.add_mesh_simple("/rx/horizon", v, f, color=(230, 230, 230), opacity=0.35,
-                               side="double", cast_shadow=False, receive_shadow=False)
-            sc.add_label("/rx/label", "receiver", position=(0.0, 0.0, 0.4),
-                         anchor="bottom-center")
-            self._mask_deg = None
-            for name in run.sat_names:
-                frame = sc.add_frame(f"/sats/{name}", show_axes=False)
-                ball = sc.add_icosphere(f"/sats/{name}/ball", radius=SAT_RADIUS,
-                                        color=STATE_COLORS["used"], subdivisions=2,
-                                        cast_shadow=False, receive_shadow=False)
-                label = sc.add_label(f"/sats/{name}/label", name, position=(0, 0, 0.6),
-                                     anchor="bottom-center")
-                self._sat_frames.append(frame)
-                self._sat_balls.append(ball)
-                self._sat_labels.append(label)
-            self._sat_state = None
+            self._key = run.geometry_key()
+            self._build_geometry(run)
         if run.mask_deg != self._mask_deg:
-            v, f = mask_cone(run.mask_deg)
-            self._nodes["/rx/mask_cone"] = sc.add_mesh_simple(
-                "/rx/mask_cone", v, f, color=(220, 60, 60), opacity=0.18, side="double",
-                cast_shadow=False, receive_shadow=False)
-            self._mask_deg = run.mask_deg
+            self._build_mask(run.mask_deg)
         self._run = run
+        self._reframe(run)
         self.set_time(min(self.i_epoch, run.t_s.shape[0] - 1), force=True)
 
     def set_time(self, i_epoch: int, force: bool = False) -> None:
-        """Move satellites and receiver to epoch ``i_epoch`` and recolour by state."""
+        """Move satellites and receiver to epoch ``i_epoch``, recolour by state, label
+        the satellites in the receiver's sky and draw the fault cue of that epoch."""
         run = self._run
         if run is None:
             return
@@ -268,31 +606,40 @@ class SkyScene:
         sc = self.scene
         rx = run.pos_rx_ecef_m[i]
         rx_scene = rx * SCALE_PER_M
-        rx_handle = self._rx_handle()
+        rx_handle = self._nodes.get("/rx")
         if rx_handle is not None:
             rx_handle.position = rx_scene
             rx_handle.wxyz = enu_to_ecef_wxyz(rx)
-        orbits = self._node("/orbits")
+        orbits = self._nodes.get("/orbits")
         if orbits is not None:
             orbits.wxyz = earth_rotation_wxyz(float(run.t_s[i] - run.t_s[0]))
-        sv = run.pos_sv_ecef_m[i] * SCALE_PER_M
+        sv_m = run.pos_sv_ecef_m[i]
+        sv = sv_m * SCALE_PER_M
         state = run.state[i]
         # A satellite without a position (a recording's satellite with no usable
         # ephemeris is parked at the Earth's centre) is hidden, not drawn inside the Earth.
-        shown = np.linalg.norm(sv, axis=-1) > 7.0
+        shown = has_position(sv_m)
+        labelled = labelled_satellites(sv_m, rx)
+        bias = (run.fault_bias_m[i] if run.fault_bias_m is not None
+                else np.zeros(len(run.sat_names)))
+        faulted = (np.asarray(run.faulted[i], dtype=bool) if run.faulted is not None
+                   else np.zeros(len(run.sat_names), dtype=bool))
         for k, frame in enumerate(self._sat_frames):
             frame.position = sv[k]
-            if frame.visible != bool(shown[k]):
-                frame.visible = bool(shown[k])
+            frame.visible = bool(shown[k])  # viser sends only a change
+            self._sat_labels[k].visible = bool(labelled[k])
         if self._sat_state is None or force or np.any(state != self._sat_state):
             for k in range(len(self._sat_balls)):
                 if self._sat_state is None or state[k] != self._sat_state[k] or force:
-                    st = STATE_ORDER[state[k]]
-                    self._sat_balls[k].color = STATE_COLORS[st]
-                    self._sat_labels[k].text = (f"{run.sat_names[k]} ({st})"
-                                                if st in ("faulty", "excluded")
-                                                else run.sat_names[k])
+                    self._sat_balls[k].color = STATE_COLORS[STATE_ORDER[state[k]]]
             self._sat_state = state.copy()
+        for k in np.flatnonzero(faulted | (state == STATE_ORDER.index("excluded"))
+                                | (np.array(self._label_text) != np.array(run.sat_names))):
+            text = label_text(run.sat_names[k], STATE_ORDER[state[k]], float(bias[k]),
+                              bool(faulted[k]))
+            if text != self._label_text[k]:
+                self._sat_labels[k].text = text
+                self._label_text[k] = text
         vis = (state != STATE_ORDER.index("below mask")) & shown
         if vis.any():
             pts = np.stack([np.broadcast_to(rx_scene, sv[vis].shape), sv[vis]], axis=1)
@@ -301,12 +648,71 @@ class SkyScene:
                                                        thickness_units="screen")
         elif "/los" in self._nodes:
             self._nodes.pop("/los").remove()
+        self._draw_fault_cue(sv_m, rx, bias, faulted, state)
 
-    def _node(self, name: str):
-        return self._nodes.get(name)
+    def _draw_fault_cue(self, sv_m, rx_m, bias, faulted, state) -> None:
+        """Thick line of sight, bias segment and apparent position of each faulted
+        satellite; nothing is sent while no fault acts (scrubbing stays light)."""
+        idx, start, end = fault_cue(sv_m, rx_m, bias, faulted)
+        names = tuple(self._run.sat_names[k] for k in idx)
+        self._cue_segments = (start, end)
+        if not names:
+            if self._cue_names:
+                for name in ("/fault/los", "/fault/bias", "/fault/ghost"):
+                    handle = self._nodes.pop(name, None)
+                    if handle is not None:
+                        handle.remove()
+            self._cue_names = ()
+            return
+        sc = self.scene
+        rx = np.broadcast_to(rx_m * SCALE_PER_M, start.shape)
+        col = np.repeat(_rgb_array(state[idx])[:, None, :], 2, axis=1)
+        self._nodes["/fault/los"] = sc.add_line_segments(
+            "/fault/los", np.stack([rx, start], axis=1), col, thickness=4.5,
+            thickness_units="screen")
+        self._nodes["/fault/bias"] = sc.add_line_segments(
+            "/fault/bias", np.stack([start, end], axis=1), BIAS_RGB, thickness=5.0,
+            thickness_units="screen")
+        self._nodes["/fault/ghost"] = sc.add_point_cloud(
+            "/fault/ghost", end.astype(np.float32), BIAS_RGB, point_size=0.7,
+            point_shape="circle", precision="float32")
+        self._cue_names = names
 
-    def _rx_handle(self):
-        return self._nodes.get("/rx")
+    # Camera framing.
+    def _reframe(self, run: SceneRun) -> None:
+        rx = run.pos_rx_ecef_m[0]
+        rx_hat = rx / np.linalg.norm(rx)
+        r_orbit = largest_orbit_radius_m(run.pos_sv_ecef_m)
+        if self._framed is not None:
+            rx0, r0 = self._framed
+            moved_deg = np.degrees(np.arccos(np.clip(rx0 @ rx_hat, -1.0, 1.0)))
+            if abs(r_orbit / r0 - 1.0) <= REFRAME_ORBIT_FRACTION and \
+                    moved_deg <= REFRAME_SITE_DEG:
+                return
+        self._framed = (rx_hat, r_orbit)
+        with self._camera_lock:
+            self._pending_pose = (rx, r_orbit)
+        self._apply_pending_pose()
+
+    def _on_camera_update(self, _camera) -> None:
+        if self._pending_pose is not None:
+            self._apply_pending_pose()
+
+    def _apply_pending_pose(self) -> None:
+        """Aim the client's camera at the pending framing once the browser has reported
+        its camera (field of view and aspect); until then it stays pending."""
+        cam = self.camera
+        if cam is None or not _camera_ready(cam):
+            return
+        with self._camera_lock:
+            pending, self._pending_pose = self._pending_pose, None
+        if pending is None:
+            return
+        rx, r_orbit = pending
+        aspect = min(cam.image_width / cam.image_height if cam.image_height > 0
+                     else VIEW_ASPECT, VIEW_ASPECT)
+        fov = cam.fov if 0.0 < cam.fov < np.pi else DEFAULT_FOV_RAD
+        aim_camera(cam, camera_pose(rx, r_orbit, fov_rad=fov, aspect=aspect))
 
     # Introspection for tests.
     def sat_colors(self) -> dict[str, tuple[int, int, int]]:
@@ -315,3 +721,15 @@ class SkyScene:
 
     def sat_positions(self) -> np.ndarray:
         return np.array([np.asarray(f.position) for f in self._sat_frames])
+
+    def sat_labels(self) -> dict[str, tuple[bool, str]]:
+        """Satellite name -> (label visible, label text) at the shown epoch."""
+        names = self._run.sat_names if self._run else ()
+        return {n: (bool(h.visible), h.text) for n, h in
+                zip(names, self._sat_labels, strict=False)}
+
+    def fault_cue_shown(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Satellite name -> (satellite, apparent position) of the fault cue drawn at the
+        shown epoch (scene units); empty while no fault acts."""
+        start, end = self._cue_segments
+        return {n: (start[j], end[j]) for j, n in enumerate(self._cue_names)}
