@@ -7,60 +7,65 @@ Pure functions of plain data; no GUI import.
 
 from __future__ import annotations
 
-import re
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from raimcore.scoring import Summary
+from raimcore.measure.faults import Fault
+from raimcore.scoring import Summary, in_fault_memory
 
 from .figures import RunView
-
-# TeX macros -> Unicode, for viser's Markdown (which renders no math): equations are shown
-# as code spans with readable symbols.
-_TEX = {
-    r"\sigma": "σ", r"\lambda": "λ", r"\beta": "β", r"\tau": "τ", r"\alpha": "α",
-    r"\mu": "μ", r"\Delta": "Δ", r"\delta": "δ", r"\sum": "Σ", r"\chi": "χ", r"\theta": "θ",
-    r"\epsilon": "ε", r"\varepsilon": "ε", r"\le": "≤", r"\ge": "≥", r"\leq": "≤",
-    r"\geq": "≥", r"\neq": "≠", r"\approx": "≈", r"\sim": "~", r"\cdot": "·", r"\times": "×",
-    r"\infty": "∞", r"\in": "∈", r"\|": "‖", r"\hat": "", r"\mathrm": "", r"\operatorname": "",
-    r"\left": "", r"\right": "", r"\quad": " ", r"\,": " ", r"\;": " ", r"\max": "max",
-    r"\min": "min", r"\arg": "arg", r"\log": "log", r"\sqrt": "√", r"\top": "T",
-    r"\ldots": "…", r"\dots": "…", r"\to": "→", r"\rightarrow": "→", r"\propto": "∝",
-    r"\Phi": "Φ", r"\phi": "φ", r"\pi": "π", r"\omega": "ω", r"\gamma": "γ", r"\eta": "η",
-    r"\rho": "ρ", r"\nu": "ν", r"\mathcal": "", r"\mathbf": "", r"\boldsymbol": "",
-}
-
-
-def tex_to_text(tex: str) -> str:
-    """Make TeX readable without a math renderer (``\\sigma^2`` -> ``σ^2``).
-
-    >>> tex_to_text(r"\\lambda = \\|V b\\|^2 / \\sigma^2")
-    'λ = ‖V b‖^2 / σ^2'
-    """
-    out = tex
-    out = re.sub(r"\\lVert\s*", "‖", out)
-    out = re.sub(r"\s*\\rVert", "‖", out)
-    for macro in sorted(_TEX, key=len, reverse=True):
-        tail = r"(?![A-Za-z])" if macro[-1].isalpha() else ""
-        out = re.sub(re.escape(macro) + tail, lambda _m, r=_TEX[macro]: r, out)
-    out = re.sub(r"\\frac\{([^{}]*)\}\{([^{}]*)\}", r"(\1)/(\2)", out)
-    out = out.replace("{", "").replace("}", "")
-    return re.sub(r"[ \t]+", " ", out).strip()
-
-
-def markdown_math(md: str) -> str:
-    """Replace ``$...$`` / ``$$...$$`` math in Markdown by code spans of readable text."""
-    md = re.sub(r"\$\$(.+?)\$\$", lambda m: f"\n\n`{tex_to_text(m.group(1))}`\n\n", md,
-                flags=re.S)
-    return re.sub(r"\$([^$]+?)\$", lambda m: f"`{tex_to_text(m.group(1))}`", md)
+from .mathrender import markdown_math
 
 
 def teaching_markdown(label: str, summary: str, equations: str, reference: str = "") -> str:
-    """The teaching panel for one algorithm (from its ``AlgorithmSpec``)."""
-    parts = [f"### {label}", summary.strip(), "**Key equations**", markdown_math(equations)]
+    """The teaching panel for one algorithm (from its ``AlgorithmSpec``): its summary and
+    key equations, every ``$...$`` typeset as MathML (:mod:`app.mathrender`).
+
+    Raises
+    ------
+    app.mathrender.MathError : a formula does not typeset (the test suite renders every
+        registered algorithm's text).
+    """
+    parts = [f"### {label}", markdown_math(summary.strip()), "**Key equations**",
+             markdown_math(equations.strip())]
     if reference:
-        parts.append(f"*Reference:* {reference}")
+        parts.append(f"*Reference:* {markdown_math(reference)}")
     return "\n\n".join(p for p in parts if p)
+
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def format_probability(p: float, digits: int = 2) -> str:
+    """A probability in scientific notation, the way the teaching text writes it.
+
+    A fixed number of decimals hides small probabilities (``P_fa = 2.8e-9`` shown with 7
+    decimals reads ``0.0000000``), so every probability is written as a mantissa times a
+    power of ten, with ``digits`` significant digits.
+
+    >>> format_probability(2.8e-9)
+    '2.8 × 10⁻⁹'
+    >>> format_probability(1e-3)
+    '1 × 10⁻³'
+    >>> format_probability(0.0)
+    '0'
+    """
+    if p == 0 or not np.isfinite(p):
+        return f"{p:g}"
+    mant, exp = f"{p:.{digits - 1}e}".split("e")
+    mant = mant.rstrip("0").rstrip(".") if "." in mant else mant
+    exp = int(exp)
+    if exp == 0:
+        return mant
+    return f"{mant} × 10{str(exp).translate(_SUPERSCRIPT)}"
+
+
+def _fmt_count(x: float) -> str:
+    """An expected number of events: ``0.6``, ``12``, or scientific when below 0.01."""
+    return f"{x:.2g}" if x >= 0.01 or x == 0 else format_probability(x)
 
 
 def _fmt_t(t_s: float) -> str:
@@ -71,17 +76,57 @@ def _plural(n: int, word: str) -> str:
     return f"{n} {word}{'' if n == 1 else 's'}"
 
 
-def verdict(view: RunView, summary: Summary, p_fa: float | None = None) -> str:
-    """One line saying what happened in the run, for every injected fault.
+@dataclass(frozen=True)
+class _Onset:
+    """A fault as the verdict needs it (duck-typed like :class:`raimcore.measure.Fault`)."""
 
-    The counts (false alarms k of n fault-free epochs, unavailable and detect-only epochs,
-    faults that never act) are the run's :class:`~raimcore.scoring.Summary`, the same the
-    command line prints; the per-fault story (detection time, exclusion, error) is read
-    from ``view``.
+    sat: str
+    t0_s: float
+    t1_s: float = math.inf
 
-    Examples: ``"Fault on G10 detected at t = 34 s (14 s after onset), G10 excluded, HPE
-    back to 12 m."``, ``"Fault on G10 (from t = 20 s) never detected."``, ``"No fault
-    injected: 1 alarm in 600 epochs (false alarms, expected about 0.6)."``
+
+def _onsets_from_truth(view: RunView) -> list[_Onset]:
+    """Faults read back from ``view.faulted`` when the scenario's list is not given: one per
+    run of faulted epochs of a satellite (a ramp's onset then reads one epoch late, its
+    bias being zero at ``t0_s``: pass the faults to :func:`verdict`)."""
+    t = view.t_s
+    out = []
+    for j in np.flatnonzero(np.any(view.faulted, axis=0)):
+        on = np.concatenate([[False], view.faulted[:, j], [False]]).astype(np.int8)
+        starts, ends = np.flatnonzero(np.diff(on) == 1), np.flatnonzero(np.diff(on) == -1)
+        for i0, i1 in zip(starts, ends, strict=True):
+            out.append(_Onset(view.sat_names[j], float(t[i0]),
+                              float(t[i1]) if i1 < t.size else math.inf))
+    return sorted(out, key=lambda f: f.t0_s)
+
+
+def verdict(view: RunView, summary: Summary, p_fa: float | None = None,
+            faults: Sequence[Fault] | None = None) -> str:
+    """What happened in the run, one sentence per injected fault, then the false alarms.
+
+    Each fault gets its own detection: the first alarm, while the fault acts (or while a
+    windowed algorithm still holds it), whose isolated or excluded satellite is that fault's.
+    When an alarm raised by another fault is already on at its onset and the fault is never
+    named, the verdict says so ("alarm already active (raised by G10's fault)") instead of
+    crediting that alarm. Onsets are the faults' own ``t0_s``, as the controls state them
+    (a ramp's bias is still zero there). The counts (false alarms k of n fault-free
+    epochs, unavailable and detect-only epochs, faults that never act) are the run's
+    :class:`~raimcore.scoring.Summary`, the same the command line prints; probabilities
+    are written in scientific notation (:func:`format_probability`).
+
+    Parameters
+    ----------
+    view : the run as the figures see it.
+    summary : the run's summary.
+    p_fa : the false-alarm probability per epoch, for the expected number of false alarms.
+    faults : the scenario's injected faults (``scenario.faults``); without them the faults
+        are read back from ``view.faulted`` (a ramp then seems to start one epoch late).
+
+    Examples: ``"Fault on G10 detected at t = 129 s (9 s after its onset at t = 120 s),
+    G10 excluded, HPE back to 3.1 m."``, ``"Fault on G05 from t = 300 s: alarm already
+    active (raised by G10's fault), G05 never isolated, HPE up to 15 m."``, ``"No fault
+    injected: 1 alarm in 600 epochs (false alarms, P_fa = 1 × 10⁻³ per epoch: about 0.6
+    expected)."``
     """
     t = view.t_s
     n_e = t.shape[0]
@@ -91,57 +136,139 @@ def verdict(view: RunView, summary: Summary, p_fa: float | None = None) -> str:
     warnings = [_sentence(n.removeprefix("warning:").strip()) for n in summary.notes
                 if n.startswith("warning:")]
     tail = [*warnings, *_epoch_notes(summary)]
-    alarm = np.asarray(view.table.get("alarm", np.zeros(n_e, bool)), dtype=bool)
-    faulty = np.flatnonzero(np.any(view.faulted, axis=0))
-    if summary.faulted_epochs == 0 or faulty.size == 0:
+    expected = (f", P_fa = {format_probability(p_fa)} per epoch: about "
+                f"{_fmt_count(p_fa * fa.n)} expected" if p_fa is not None else "")
+    if summary.faulted_epochs == 0 or not np.any(view.faulted):
         what = "No fault acts" if warnings else "No fault injected"
-        rate = f", expected about {p_fa * fa.n:.2g}" if p_fa is not None else ""
         return " ".join([f"{what}: {_plural(fa.k, 'alarm')} in {fa.n} epochs (false "
-                         f"alarms{rate}).", *tail])
-    hpe_after = view.column("hpe_after_m")
-    hpe_before = view.column("hpe_before_m")
-    lines = []
-    for j in faulty:
-        name = view.sat_names[j]
-        active = view.faulted[:, j]
-        i_on = int(np.argmax(active))
-        det = alarm & (np.arange(n_e) >= i_on) & active
-        if not det.any():
-            msg = (f"Fault on {name} (from t = {_fmt_t(t[i_on])}) never detected")
-            if hpe_before is not None and np.isfinite(hpe_before[active]).any():
-                msg += f", HPE up to {np.nanmax(np.abs(hpe_before[active])):.0f} m"
-            lines.append(msg + ".")
-            continue
-        i_det = int(np.argmax(det))
-        delay = t[i_det] - t[i_on]
-        msg = f"Fault on {name} detected at t = {_fmt_t(t[i_det])}"
-        msg += f" ({_fmt_t(delay)} after onset)" if delay > 0 else " (at onset)"
-        excl = view.excluded[:, j] & active
-        if excl.any():
-            msg += f", {name} excluded"
-            if hpe_after is not None and np.isfinite(hpe_after[excl]).any():
-                hpe = float(np.nanmedian(np.abs(hpe_after[excl])))
-                # Metres for snapshot errors; decimetres where they are small (filters,
-                # real data), so "back to 0 m" never shows.
-                msg += f", HPE back to {hpe:.0f} m" if hpe >= 10 else \
-                    f", HPE back to {hpe:.1f} m"
-        else:
-            others = np.flatnonzero(np.any(view.excluded[active], axis=0))
-            others = [view.sat_names[k] for k in others if k != j]
-            if others:
-                msg += f", but {', '.join(others[:3])} excluded instead (wrong satellite)"
-            else:
-                msg += ", nothing excluded"
-        lines.append(msg + ".")
+                         f"alarms{expected}).", *tail])
+    story = _FaultStory(view)
+    onsets = list(faults) if faults is not None else _onsets_from_truth(view)
+    lines = [line for f in onsets if (line := story.tell(f, onsets)) is not None]
     if fa.k:
         lines.append(f"{_plural(fa.k, 'alarm')} while no fault was on ({fa.k} of {fa.n} "
-                     f"fault-free epochs).")
+                     f"fault-free epochs){expected}.")
     # Windowed or filtering algorithms still hold a fault for `memory_epochs` after it ends:
     # their alarms there are not false alarms (the summary counts them apart).
     if summary.fault_memory_alarms:
         lines.append(f"{_plural(summary.fault_memory_alarms, 'alarm')} just after the fault "
                      f"ended, while it was still in the algorithm's window.")
     return " ".join([*lines, *tail])
+
+
+class _FaultStory:
+    """The per-fault sentences of :func:`verdict`, over one run."""
+
+    def __init__(self, view: RunView):
+        self.view = view
+        self.t = view.t_s
+        n_e = self.t.shape[0]
+        self.alarm = np.asarray(view.table.get("alarm", np.zeros(n_e, bool)), dtype=bool)
+        self.memory = view.table.get("memory_epochs")
+        iso = (np.full(n_e, -1) if view.isolated_idx is None
+               else np.asarray(view.isolated_idx, dtype=int))
+        # named[i, j]: the algorithm isolates or excludes satellite j at epoch i.
+        self.named = np.asarray(view.excluded, dtype=bool).copy()
+        rows = np.flatnonzero(iso >= 0)
+        self.named[rows, iso[rows]] = True
+        self.hpe_after = view.column("hpe_after_m", "hpe_before_m")
+
+    def window(self, f) -> np.ndarray:
+        """(E,) bool: epochs with ``t0_s <= t < t1_s``."""
+        return (self.t >= f.t0_s) & (self.t < f.t1_s)
+
+    def held(self, f) -> np.ndarray:
+        """(E,) bool: the fault's window and the epochs a windowed algorithm still holds it."""
+        w = self.window(f)
+        if self.memory is None:
+            return w
+        return w | in_fault_memory(w, self.memory)
+
+    def tell(self, f, faults) -> str | None:
+        """The sentence for fault ``f`` (None when it never acts: the summary warns)."""
+        v, alarm = self.view, self.alarm
+        if f.sat not in v.sat_names:
+            return None
+        j = v.sat_names.index(f.sat)
+        window = self.window(f)
+        if not (window & v.faulted[:, j]).any():
+            return None
+        i_on = int(np.argmax(window))
+        held = self.held(f)
+        onset = f"t = {_fmt_t(f.t0_s)}"
+        # Alarms raised by the other faults: they name another faulty satellite that its
+        # fault holds at that epoch. Excluding those satellites is right, not "instead".
+        by_other = np.zeros_like(alarm)
+        culprit: dict[int, str] = {}
+        rightly = set()
+        for g in faults:
+            if g.sat == f.sat or g.sat not in v.sat_names:
+                continue
+            k = v.sat_names.index(g.sat)
+            rightly.add(k)
+            mine = alarm & self.named[:, k] & self.held(g)
+            for i in np.flatnonzero(mine & ~by_other):
+                culprit[int(i)] = g.sat
+            by_other |= mine
+        own = alarm & held & self.named[:, j]
+        if own.any():
+            return self._detected(f, j, int(np.argmax(own)), window, rightly) + "."
+        hpe = self._hpe_up_to(window)
+        # An alarm raised by another fault was on just before the onset and still is: it
+        # is not this fault's detection.
+        if i_on > 0 and by_other[i_on - 1] and alarm[i_on]:
+            wrong = self._excluded_instead(j, window, rightly)
+            return (f"Fault on {f.sat} from {onset}: alarm already active (raised by "
+                    f"{culprit[i_on - 1]}'s fault), {f.sat} never isolated"
+                    f"{f', {wrong}' if wrong else ''}{hpe}.")
+        other = alarm & held & ~by_other
+        if other.any():
+            return self._detected(f, j, int(np.argmax(other)), window, rightly) + "."
+        if (alarm & held).any():
+            names = sorted({culprit[int(i)] for i in np.flatnonzero(alarm & held)})
+            return (f"Fault on {f.sat} from {onset} never isolated: every alarm while it "
+                    f"acted named {' or '.join(names)}'s fault{hpe}.")
+        return f"Fault on {f.sat} (from {onset}) never detected{hpe}."
+
+    def _detected(self, f, j: int, i_det: int, window: np.ndarray, rightly: set) -> str:
+        v, t = self.view, self.t
+        delay = t[i_det] - f.t0_s
+        msg = f"Fault on {f.sat} detected at t = {_fmt_t(t[i_det])}"
+        msg += (f" ({_fmt_t(delay)} after its onset at t = {_fmt_t(f.t0_s)})" if delay > 0
+                else " (at its onset)")
+        excl = v.excluded[:, j] & window
+        if excl.any():
+            msg += f", {f.sat} excluded"
+            hpe = self.hpe_after
+            if hpe is not None and np.isfinite(hpe[excl]).any():
+                med = float(np.nanmedian(np.abs(hpe[excl])))
+                # Metres for snapshot errors; decimetres where they are small (filters,
+                # real data), so "back to 0 m" never shows.
+                msg += f", HPE back to {med:.0f} m" if med >= 10 else \
+                    f", HPE back to {med:.1f} m"
+            return msg
+        wrong = self._excluded_instead(j, window, rightly)
+        return msg + (f", but {wrong}" if wrong else ", nothing excluded")
+
+    def _excluded_instead(self, j: int, window: np.ndarray, rightly: set) -> str:
+        """``"G02, G09 excluded instead (wrong satellite)"``: satellites excluded while the
+        fault acts that are neither its own nor another fault's (empty if none)."""
+        v = self.view
+        wrong = [v.sat_names[k] for k in np.flatnonzero(np.any(v.excluded[window], axis=0))
+                 if k != j and k not in rightly]
+        if not wrong:
+            return ""
+        more = f" and {len(wrong) - 3} more" if len(wrong) > 3 else ""
+        return (f"{', '.join(wrong[:3])}{more} excluded instead (wrong "
+                f"satellite{'s' if len(wrong) > 1 else ''})")
+
+    def _hpe_up_to(self, window: np.ndarray) -> str:
+        """``", HPE up to 15 m"``: the largest horizontal error of the output position
+        while the fault acts (empty without an error column)."""
+        hpe = self.hpe_after
+        if hpe is None or not np.isfinite(hpe[window]).any():
+            return ""
+        return f", HPE up to {np.nanmax(np.abs(hpe[window])):.0f} m"
 
 
 def _sentence(text: str) -> str:

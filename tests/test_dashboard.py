@@ -257,13 +257,6 @@ def test_verdict_reads_its_counts_from_the_summary():
     assert "7 epochs of 600 unavailable" in text and "3 epochs detect-only" in text
 
 
-def test_tex_is_readable_without_a_math_renderer():
-    assert teaching.tex_to_text(r"\lambda = \lVert V b \rVert^2 / \sigma^2") == \
-        "λ = ‖V b‖^2 / σ^2"
-    md = teaching.markdown_math(r"statistic $DF_D = p^T p \sim \chi^2_{m-n}$ here")
-    assert md == "statistic `DF_D = p^T p ~ χ^2_m-n` here"
-
-
 # -- the live server, driven in-process -------------------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -102,7 +102,8 @@ class AlgorithmSpec:
     ----------
     name : short key used on the CLI and in scenario files (``"parity"``).
     label : human name for menus.
-    summary : one paragraph, plain words, for the dashboard's teaching panel.
+    summary : one paragraph, plain words (Markdown; symbols as ``$...$`` math), for the
+        dashboard's teaching panel.
     equations : the key equations (Markdown with ``$...$`` math) for the teaching panel.
     run : ``run(data: Measurements, options: dict) -> AlgorithmOutput``; ``options`` holds
         every declared option, validated, defaults filled in.

@@ -37,12 +37,13 @@ SUMMARY = (
 )
 
 EQUATIONS = r"""
-- Predict $\hat x_k^- = F \hat x_{k-1}$, $P_k^- = F P_{k-1} F^T + Q$
-- Innovation $\nu = \rho - h(\hat x_k^-)$, $S = H P_k^- H^T + R$, $R = \mathrm{diag}(\sigma_i^2)$
+- Predict $\hat x_{k|k-1} = F \hat x_{k-1|k-1}$, $P_{k|k-1} = F P_{k-1|k-1} F^T + Q$
+- Innovation $\nu = \rho - h(\hat x_{k|k-1})$, $S = H P_{k|k-1} H^T + R$,
+  $R = \mathrm{diag}(\sigma_i^2)$
 - Test $\mathrm{NIS} = \nu^T S^{-1} \nu \sim \chi^2_m$, alarm when
-  $\mathrm{NIS} > \chi^2_{m}{}^{-1}(1 - P_{fa})$
-- Exclude $\hat\jmath = \arg\max_i |\nu_i| / \sqrt{S_{ii}}$, then
-  $K = P H^T S^{-1}$, $\hat x_k = \hat x_k^- + K \nu$
+  $\mathrm{NIS} > F^{-1}(1 - P_{fa})$ ($F$: the CDF of $\chi^2_m$, $m$ satellites)
+- Exclude $\hat\jmath = \mathrm{arg\,max}_i\, |\nu_i| / \sqrt{S_{ii}}$, then
+  $K = P_{k|k-1} H^T S^{-1}$, $\hat x_{k|k} = \hat x_{k|k-1} + K \nu$
 """
 
 

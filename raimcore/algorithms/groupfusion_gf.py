@@ -9,24 +9,29 @@ from .groupfusion import WEIGHTS, gf_isolate, select_groups
 
 SUMMARY = (
     "Several satellites may be faulty at once. The visible satellites are split into many "
-    "overlapping groups of 4 + q (six for GPS + BeiDou), and each group is tested on its "
-    "own with the least-squares residual chi-square. A group's statistic becomes evidence "
-    "m(F) that its members are faulty: 0.5 exactly at the threshold, towards 1 far above "
-    "it, towards 0 far below. Each satellite fuses the evidence of all its groups (the "
-    "weighted distribution of conflict, which here is a reliability-weighted mean), and "
-    "every satellite whose fused m(F) stands more than M above the mean of all satellites "
-    "is isolated - however many there are. Watch the per-satellite m(F) against the "
-    "isolation threshold."
+    "overlapping groups of $r = 4 + q$ ($q$ constellations: six for GPS + BeiDou), and each "
+    "group is tested on its own with the least-squares residual chi-square. A group's "
+    "statistic becomes evidence $m(F)$ that its members are faulty: 0.5 exactly at the "
+    "threshold, towards 1 far above it, towards 0 far below. Each satellite fuses the "
+    "evidence of all its groups (the weighted distribution of conflict, which here is a "
+    "reliability-weighted mean), and every satellite whose fused $m(F)$ stands more than "
+    "$M$ above the mean of all satellites is isolated - however many there are. Watch the "
+    "per-satellite $m(F)$ against the isolation threshold."
 )
 
 EQUATIONS = r"""
-- Groups: $L = C_N^r$, $r = 4 + q$; keep $L_1 = \lfloor L/K \rfloor \approx N^2$ at spacing $K$
-- Group test: $\theta = w^T w/\sigma_0^2$, $w = (I - G(G^TG)^{-1}G^T)y$,
-  $\theta \sim \chi^2_{r-3-q_g}$, $T = \chi^{2\,-1}(1 - P_{FA})$
-- Evidence: $m(F) = \tfrac12 F(\theta)/F(T)$ for $\theta \le T$,
-  $m(F) = \tfrac12 + \tfrac12\,(1 - \bar F(\theta)/\bar F(T))$ above; $m(N) = 1 - m(F)$
-- Fusion (weighted conflict, $\alpha = 1/p$): $m(F) = \sum_g \alpha_g m_g(F) / \sum_g \alpha_g$
-- Isolation: $m_j(F) > \frac1N \sum_i m_i(F) + M$
+- Groups: all $L = \binom{N}{r}$ subsets of $r = 4 + q$ of the $N$ satellites ($q$
+  constellations); keep $L_1 = \lfloor L/K \rfloor \approx N^2$ of them, every $K$-th
+- Group test: $\theta = w^T w / \sigma_0^2$, $w = (I - G(G^T G)^{-1} G^T)\, y$,
+  $\theta \sim \chi^2_{r-3-q_g}$ ($q_g$ constellations in the group),
+  $T = C^{-1}(1 - P_{FA})$ ($C$: that chi-square law's CDF)
+- Evidence that the group is faulty ($F$) or not ($N$):
+  $m(F) = \tfrac12\, C(\theta) / C(T)$ for $\theta \le T$,
+  $m(F) = \tfrac12 + \tfrac12 \big(1 - \bar C(\theta) / \bar C(T)\big)$ above
+  ($\bar C = 1 - C$); $m(N) = 1 - m(F)$
+- Fusion (weighted conflict, reliability $\alpha_g = 1/p_g$):
+  $m_j(F) = \sum_{g \ni j} \alpha_g\, m_g(F) / \sum_{g \ni j} \alpha_g$
+- Isolation: $m_j(F) > \frac{1}{N} \sum_i m_i(F) + M$
 """
 
 

@@ -10,14 +10,15 @@ from .groupfusion import qv_isolate, select_groups
 SUMMARY = (
     "The quality value method tests the same groups as GF but listens only to the groups "
     "that fail: each failing group gives a confidence index to its members. A satellite's "
-    "score is the share of its groups that fail, and satellites scoring more than M above "
+    "score is the share of its groups that fail, and satellites scoring more than $M$ above "
     "the mean are isolated. One baseline of seed 004."
 )
 
 EQUATIONS = r"""
 - Same groups and test as GF: group $g$ fails when $\theta_g > T_g$
-- Score: $QV_j = \#\{g \ni j : \theta_g > T_g\} / \#\{g \ni j\}$
-- Isolation: $QV_j > \frac1N \sum_i QV_i + M$
+- Score of satellite $j$, the share of its groups that fail ($\#$: how many):
+  $\mathrm{QV}_j = \#\{g \ni j : \theta_g > T_g\} \,/\, \#\{g \ni j\}$
+- Isolation: $\mathrm{QV}_j > \frac{1}{N} \sum_i \mathrm{QV}_i + M$
 """
 
 

@@ -28,30 +28,34 @@ IDENT_RULES = ("unique", "rank")
 SUMMARY = (
     "Solution separation compares the position from all measurements (the main solution) "
     "with the positions obtained by leaving out one satellite at a time (sub-solutions). "
-    "Without a fault they differ only by noise whose covariance is known (dP_i = P_i - P_0), "
-    "so each separation is tested against a threshold set from the false-alarm probability. "
-    "To name the faulty satellite each sub-solution is in turn checked against its own "
-    "sub-sub-solutions: the sub-solution that left out the faulty satellite is consistent. "
-    "A barometric altimeter adds one height measurement: it shrinks the vertical "
-    "protection level and, with only 5 satellites, gives the second redundant measurement "
-    "that identification needs. Protection levels bound the position error that a just "
-    "missed fault could cause: HPL/VPL = separation threshold + missed-detection margin."
+    r"Without a fault they differ only by noise whose covariance is known "
+    r"($dP_i = P_i - P_0$), so each separation is tested against a threshold set from the "
+    "false-alarm probability. To name the faulty satellite each sub-solution is in turn "
+    "checked against its own sub-sub-solutions: the sub-solution that left out the faulty "
+    "satellite is consistent. A barometric altimeter adds one height measurement: it "
+    "shrinks the vertical protection level and, with only 5 satellites, gives the second "
+    "redundant measurement that identification needs. Protection levels bound the position "
+    "error that a just missed fault could cause: HPL/VPL = separation threshold + "
+    "missed-detection margin."
 )
 
 EQUATIONS = r"""
-- Stacked model: $Z = [y;\ h_e - h_b]$, $H = [G';\ 0\ 0\ 1\ 0]$, $W = R^{-1}$,
-  $R = \mathrm{diag}(\sigma^2,\dots,\sigma_b^2)$
+- Stacked model: $Z = [y;\ h_e - h_b]$, $H = [G;\ 0\ 0\ 1\ 0]$, $W = R^{-1}$,
+  $R = \mathrm{diag}(\sigma^2, \dots, \sigma^2, \sigma_b^2)$ ($G$: the satellites' rows in
+  east, north, up and clock; $h_e - h_b$: the altimeter's height)
 - Main solution: $X_0 = S_0 Z$, $S_0 = (H^T W H)^{-1} H^T W$, $P_0 = (H^T W H)^{-1}$
 - Sub-solution $i$ (satellite $i$ out, baro kept): $X_i = S_i Z$, $dX_i = X_0 - X_i$,
   $dP_i = P_i - P_0$
-- Test: $d_i = \lVert dX_i^{EN} \rVert > T_i = \sqrt{\lambda_{max}(dP_i^{EN})}\,
-  Q^{-1}(P_{fa}/2m)$; vertically $|dX_i^U| > \sqrt{dP_i^{UU}}\,Q^{-1}(P_{fa}/2m)$
+- Test: $d_i = \lVert dX_i^{EN} \rVert > T_i = \sqrt{\lambda_{\max}(dP_i^{EN})}\, k_{fa}$;
+  vertically $|dX_i^U| > \sqrt{dP_i^{UU}}\, k_{fa}$, where
+  $k_{fa} = Q^{-1}\big(P_{fa} / (2m)\big)$ ($Q$: the standard normal tail, $m$ satellites)
 - Identification: $k$ is faulty if $X_k$ passes every test against $X_{k,j}$;
-  ranking extension: $\arg\min_k \max_j d_{kj}/T_{kj}$
-- $HPL = \max_i \big(T_i + \sqrt{\lambda_{max}(P_i^{EN})}\,Q^{-1}(P_{md})\big)$
-- $VPL = \max_i \big(\sqrt{dP_i^{UU}}\,Q^{-1}(P_{fa}/2m) + \sqrt{P_i^{UU}}\,Q^{-1}(P_{md})\big)$
-- Classic (SSE) slope PL: $HPL = \max_i \mathrm{Hslope}_i \sqrt{\lambda_{det}}$ with
-  $F_{\chi^2_{m-n}(\lambda_{det})}\big(\chi^{2\,-1}_{m-n}(1-P_{fa})\big) = P_{md}$
+  ranking extension: $\mathrm{arg\,min}_k\, \max_j d_{kj} / T_{kj}$
+- $\mathrm{HPL} = \max_i \big(T_i + \sqrt{\lambda_{\max}(P_i^{EN})}\, Q^{-1}(P_{md})\big)$
+- $\mathrm{VPL} = \max_i \big(\sqrt{dP_i^{UU}}\, k_{fa} + \sqrt{P_i^{UU}}\, Q^{-1}(P_{md})\big)$
+- Classic (SSE) slope PL: $\mathrm{HPL} = \max_i \mathrm{Hslope}_i \sqrt{\lambda_{det}}$,
+  where $F_{\lambda_{det}}\big(F_0^{-1}(1 - P_{fa})\big) = P_{md}$ ($F_\lambda$: the CDF of
+  $\chi^2_{m-n}(\lambda)$, non-central for $\lambda > 0$)
 """
 
 

@@ -25,21 +25,25 @@ from .parity import parity_statistics
 
 SUMMARY = (
     "The parity vector collects the part of the measurements that no position and clock "
-    "can explain. Without a fault its squared length DF_D follows a chi-square law with "
-    "m - n degrees of freedom, so a threshold T_D set from the false-alarm probability "
-    "decides 'fault'. A bias on satellite j pushes the parity vector along that "
-    "satellite's column v_j: the satellite whose column best lines up with the parity "
-    "vector (largest DF_I_j) is isolated, removed, and the position solved again. "
-    "Two satellites whose columns are nearly parallel (isolability near 1) cannot be told "
-    "apart."
+    r"can explain. Without a fault its squared length $\mathrm{DF}_D$ follows a chi-square "
+    r"law with $m - n$ degrees of freedom, so a threshold $T_D$ set from the false-alarm "
+    r"probability decides 'fault'. A bias on satellite $j$ pushes the parity vector along "
+    r"that satellite's column $v_j$: the satellite whose column best lines up with the "
+    r"parity vector (largest $\mathrm{DF}_{I,j}$) is isolated, removed, and the position "
+    "solved again. Two satellites whose columns are nearly parallel (isolability near 1) "
+    "cannot be told apart."
 )
 
 EQUATIONS = r"""
 - Parity matrix: $V H = 0$, $V V^T = I$, $V^T V = I - H(H^T H)^{-1}H^T$
-- Parity vector: $p = V z / \sigma$; detection statistic $DF_D = p^T p \sim \chi^2_{m-n}$
-- Threshold: $T_D = \chi^2_{m-n}{}^{-1}(1 - P_{fa})$; alarm when $DF_D / T_D \ge 1$
-- Fault: $DF_D \sim \chi^2_{m-n}(\lambda)$, $\lambda = \lVert V b \rVert^2 / \sigma^2$
-- Isolation: $DF_{I,j} = (p^T v_j)^2 / (v_j^T v_j)$, faulty $k = \arg\max_j DF_{I,j}$
+  ($m$ satellites, $n$ states)
+- Parity vector: $p = V z / \sigma$ ($z$: pseudorange residuals); detection statistic
+  $\mathrm{DF}_D = p^T p \sim \chi^2_{m-n}$
+- Threshold: $T_D = F^{-1}(1 - P_{fa})$ ($F$: the CDF of $\chi^2_{m-n}$); alarm when
+  $\mathrm{DF}_D / T_D \ge 1$
+- Fault: $\mathrm{DF}_D \sim \chi^2_{m-n}(\lambda)$, $\lambda = \lVert V b \rVert^2 / \sigma^2$
+- Isolation: $\mathrm{DF}_{I,j} = (p^T v_j)^2 / (v_j^T v_j)$, faulty
+  $k = \mathrm{arg\,max}_j\, \mathrm{DF}_{I,j}$
 - Fault size: $\hat f_j = \sigma\, p^T v_j / (v_j^T v_j)$
 """
 

@@ -36,29 +36,30 @@ from .pf import (
 )
 
 SUMMARY = (
-    "A particle filter follows the receiver position and clock with a cloud of N "
-    "candidate states, weighted by how well each explains the pseudoranges under the "
-    "real, heavy-tailed noise model, so an outlier pulls it far less than a Kalman "
-    "filter. A bank of filters runs side by side: one with every satellite and one "
-    "without each satellite. When satellite j is faulty, the filter without j predicts "
-    "the measurements it sees much better than the main filter predicts all of them: "
-    "the log-likelihood ratio s_j grows. Summed over a window of W epochs, the largest "
-    "ratio beta is compared with a threshold tau found by simulating fault-free runs; "
-    "above it the satellite with the largest ratio is named and excluded. Because the "
-    "window adds W epochs, errors that persist from epoch to epoch (real multipath and "
-    "atmosphere: try Noise correlation) add up too; the fault-free simulations then use "
-    "the same correlation, and tau rises: fewer false alarms, later detection."
+    "A particle filter follows the receiver position and clock with a cloud of $N$ candidate "
+    "states, weighted by how well each explains the pseudoranges under the real, "
+    "heavy-tailed noise model, so an outlier pulls it far less than a Kalman filter. A bank "
+    "of filters runs side by side: one with every satellite and one without each "
+    "satellite. When satellite $j$ is faulty, the filter without $j$ predicts the "
+    "measurements it sees much better than the main filter predicts all of them: the "
+    r"log-likelihood ratio $s_j$ grows. Summed over a window of $W$ epochs, the largest "
+    r"ratio $\beta$ is compared with a threshold $\tau$ found by simulating fault-free "
+    "runs; above it the satellite with the largest ratio is named and excluded. Because "
+    "the window adds $W$ epochs, errors that persist from epoch to epoch (real multipath "
+    "and atmosphere: try Noise correlation) add up too; the fault-free simulations then use "
+    r"the same correlation, and $\tau$ rises: fewer false alarms, later detection."
 )
 
 EQUATIONS = r"""
 - State $x = [r, c\,\delta t]$, static: $x_k = x_{k-1} + w_k$; pseudorange
-  $\rho_i = \lVert r - s_i\rVert + c\,\delta t + v_i$, $v_i$ heavy-tailed
-- Weights $w_k^{(i)} \propto w_{k-1}^{(i)} p(y_k \mid x_k^{(i)})$,
+  $\rho_i = \lVert r - s_i \rVert + c\,\delta t + v_i$, $v_i$ heavy-tailed
+- Weights $w_k^{(i)} \propto w_{k-1}^{(i)}\, p(y_k \mid x_k^{(i)})$,
   $N_{eff} = 1 / \sum_i (w_k^{(i)})^2$, resample when $N_{eff} < 2N/3$
-- Predictive likelihood $p(y_k \mid Y_{k-1}) \approx \sum_i w_{k-1}^{(i)} p(y_k \mid x_k^{(i)})$
-- LLR $s_j(k) = \ln p_{aux,j}(y_k^{(-j)} \mid Y_{k-1}) - \ln p_{main}(y_k \mid Y_{k-1})$
+- Predictive likelihood
+  $p(y_k \mid Y_{k-1}) \approx \sum_i w_{k-1}^{(i)}\, p(y_k \mid x_k^{(i)})$
+- LLR $s_j(k) = \ln\, p_{aux,j}(y_k^{(-j)} \mid Y_{k-1}) - \ln\, p_{main}(y_k \mid Y_{k-1})$
 - Window $S_j(k) = \sum_{t=k-W+1}^{k} s_j(t)$, $\beta(k) = \max_j S_j(k)$
-- Alarm $\beta(k) > \tau$; faulty $\hat\jmath = \arg\max_j S_j(k)$, excluded
+- Alarm $\beta(k) > \tau$; faulty $\hat\jmath = \mathrm{arg\,max}_j\, S_j(k)$, excluded
 """
 
 #: Monte Carlo size of the threshold calibration (runs x armed epochs per run).
