@@ -3,8 +3,16 @@
 Every builder takes a :class:`RunView` (the result table's columns plus the per-satellite
 arrays, both plain numpy) and returns a :class:`PanelFigure`: the static traces of the run
 plus an optional *dynamic* part that depends only on the current time index (the time
-marker, the sky plot's "now" markers). The dashboard serialises the static part once per
-recompute and only the small dynamic part when the time slider moves.
+marker, the sky plot's "now" markers). The dashboard sends a figure once per recompute
+(and not at all when it did not change); moving the time slider sends only
+:meth:`PanelFigure.time_state` (the cursor's time and the dynamic traces, a few kB), which
+the page applies to the plots already drawn (:mod:`app.page`).
+
+Sizes: every figure declares its height in pixels (``layout["height"]``), the height it
+has on screen whatever the panel's width (the session sets viser's ``aspect`` from it,
+:func:`app.page.plot_aspect`); legends sit inside the figure, under the plot; titles are
+short enough for the narrowest plot panel (:data:`TITLE_MAX_CHARS`), details go to a
+second, smaller line.
 
 Figures are kept as plain dicts (plotly's JSON schema) with numpy arrays inside, and are
 serialised with numpy arrays as plotly.js typed arrays (base64 ``bdata``): building and
@@ -16,6 +24,8 @@ serialising a 600-epoch figure this way costs about a millisecond, against ~10 m
 from __future__ import annotations
 
 import base64
+import hashlib
+import html
 import json
 import re
 from collections.abc import Callable, Mapping
@@ -135,6 +145,39 @@ def _dumps(obj: Any) -> str:
     return json.dumps(_encode(obj), separators=(",", ":"), allow_nan=False, default=str)
 
 
+def _plain(obj: Any, decimals: int = 4) -> Any:
+    """Numpy arrays -> lists of numbers rounded to ``decimals`` (NaN -> None): the small
+    time updates go to the page as plain JSON."""
+    if isinstance(obj, np.ndarray):
+        if obj.dtype.kind == "f":
+            arr = np.round(obj.astype(float), decimals)
+            return [None if not np.isfinite(v) else float(v) for v in arr.ravel()] \
+                if obj.ndim == 1 else [_plain(row, decimals) for row in arr]
+        return obj.tolist()
+    if isinstance(obj, dict):
+        return {k: _plain(v, decimals) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_plain(v, decimals) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def time_axis(t_s: np.ndarray) -> dict:
+    """A trace's x for the epoch times: ``x0`` and ``dx`` when the epochs are evenly
+    spaced (half the bytes of a time panel: every trace would repeat the same x array),
+    else ``x``."""
+    t = np.asarray(t_s, dtype=float)
+    if t.size >= 2:
+        dt = float(t[1] - t[0])
+        if dt > 0 and np.allclose(np.diff(t), dt, rtol=0.0,
+                                  atol=1e-9 * max(1.0, float(np.abs(t).max()))):
+            return {"x0": float(t[0]), "dx": dt}
+    return {"x": t}
+
+
 def _clean(arr: np.ndarray) -> np.ndarray:
     return np.asarray(arr, dtype=float)
 
@@ -151,9 +194,10 @@ class PanelFigure:
     ----------
     key, title : panel registry key and human title.
     data : static traces (plotly dicts, numpy arrays inside).
-    layout : static layout.
+    layout : static layout; ``layout["height"]`` is the figure's height on screen (px).
     dynamic : ``f(i_epoch) -> (traces, layout_updates)`` or None.
     t_s : (E,) epoch times, for the default time marker.
+    marker : draw the time marker (a vertical line named ``"now"``).
     """
 
     key: str
@@ -164,14 +208,26 @@ class PanelFigure:
     t_s: np.ndarray | None = None
     marker: bool = True
     _static_json: str | None = field(default=None, repr=False)
+    _rev: str | None = field(default=None, repr=False)
+
+    @property
+    def height_px(self) -> int:
+        """The figure's height on screen (px)."""
+        return int(self.layout.get("height", 300))
+
+    def t_now(self, i_epoch: int) -> float | None:
+        """The time marker's position at epoch index ``i_epoch`` (None: no marker)."""
+        if not self.marker or self.t_s is None or not len(self.t_s):
+            return None
+        return float(self.t_s[int(np.clip(i_epoch, 0, len(self.t_s) - 1))])
 
     def parts(self, i_epoch: int | None) -> tuple[list[dict], dict]:
         """All traces and the full layout at epoch index ``i_epoch`` (None: no marker)."""
         traces: list[dict] = []
         layout = dict(self.layout)
         if i_epoch is not None:
-            if self.marker and self.t_s is not None and len(self.t_s):
-                t_now = float(self.t_s[int(np.clip(i_epoch, 0, len(self.t_s) - 1))])
+            t_now = self.t_now(i_epoch)
+            if t_now is not None:
                 shapes = list(layout.get("shapes", []))
                 shapes.append(time_marker_shape(t_now))
                 layout["shapes"] = shapes
@@ -185,20 +241,51 @@ class PanelFigure:
         traces, layout = self.parts(i_epoch)
         return {"data": list(self.data) + traces, "layout": layout}
 
-    def to_json(self, i_epoch: int | None = None) -> str:
-        """Plotly JSON; the static traces are serialised once and cached."""
+    def _data_json(self) -> str:
         if self._static_json is None:
             self._static_json = _dumps(self.data)
+        return self._static_json
+
+    @property
+    def rev(self) -> str:
+        """A digest of the static figure (traces and layout): two figures with the same
+        ``rev`` draw the same thing apart from the time-dependent part, so the page
+        keeps the one it has and a time update made for one applies to the other."""
+        if self._rev is None:
+            h = hashlib.blake2b(digest_size=8)
+            h.update(self._data_json().encode())
+            h.update(_dumps(self.layout).encode())
+            self._rev = h.hexdigest()
+        return self._rev
+
+    def to_json(self, i_epoch: int | None = None, seq: int | None = None) -> str:
+        """Plotly JSON; the static traces are serialised once and cached.
+
+        ``layout.meta`` names the panel for the page's time updates (:mod:`app.page`):
+        ``raim`` (the key), ``rev`` (:attr:`rev`), ``n`` (the number of static traces;
+        the dynamic ones follow) and ``seq`` (the time update the figure was made at).
+        """
         traces, layout = self.parts(i_epoch)
-        data_json = self._static_json
+        layout["meta"] = {"raim": self.key, "rev": self.rev, "n": len(self.data),
+                          "seq": -1 if seq is None else int(seq)}
+        data_json = self._data_json()
         if traces:
             extra = _dumps(traces)
             data_json = (data_json[:-1] + "," + extra[1:]) if self.data else extra
         return '{"data":' + data_json + ',"layout":' + _dumps(layout) + "}"
 
-    def at(self, i_epoch: int | None) -> _FigureAt:
+    def at(self, i_epoch: int | None, seq: int | None = None) -> _FigureAt:
         """An object with ``to_json()`` for viser's ``GuiPlotlyHandle.figure``."""
-        return _FigureAt(self, i_epoch)
+        return _FigureAt(self, i_epoch, seq)
+
+    def time_state(self, i_epoch: int) -> dict | None:
+        """What changes with time beyond the time marker, as plain JSON for the page:
+        ``{"rev", "traces", "layout"}`` (the dynamic traces and layout entries at epoch
+        index ``i_epoch``), or None for a figure without a dynamic part."""
+        if self.dynamic is None:
+            return None
+        traces, upd = self.dynamic(int(i_epoch))
+        return {"rev": self.rev, "traces": _plain(traces), "layout": _plain(upd)}
 
     def to_plotly(self, i_epoch: int | None = None):
         """A validated ``plotly.graph_objects.Figure`` (slow path: export and tests)."""
@@ -211,9 +298,10 @@ class PanelFigure:
 class _FigureAt:
     panel: PanelFigure
     i_epoch: int | None
+    seq: int | None = None
 
     def to_json(self) -> str:
-        return self.panel.to_json(self.i_epoch)
+        return self.panel.to_json(self.i_epoch, self.seq)
 
 
 def time_marker_shape(t_s: float) -> dict:
@@ -225,13 +313,57 @@ def time_marker_shape(t_s: float) -> dict:
     }
 
 
-def _base_layout(title: str, height: int = 260, **kw) -> dict:
+#: Longest title line (characters at TITLE_FONT_PX) and detail line (at DETAIL_FONT_PX)
+#: that fit the narrowest plot panel (about 230 px of plot width).
+TITLE_MAX_CHARS = 34
+DETAIL_MAX_CHARS = 44
+TITLE_FONT_PX = 12
+DETAIL_FONT_PX = 10
+LEGEND_FONT_PX = 10
+#: Gap (px) between the plot's bottom and its legend: room for the tick labels.
+LEGEND_GAP_PX = 24
+# Top margin (px) for a title of one line, and of two (title and detail).
+_TOP_PX = (30, 54)
+
+
+def clip_text(text: str, n: int) -> str:
+    """``text`` cut to ``n`` characters with an ellipsis."""
+    return text if len(text) <= n else text[: n - 1].rstrip(" ,;:") + "…"
+
+
+def _title(text: str, detail: str | None = None) -> dict:
+    """A title at the figure's top left: a short first line and an optional smaller
+    detail line (the algorithm, what the marks mean)."""
+    title = {"text": clip_text(text, TITLE_MAX_CHARS), "font": {"size": TITLE_FONT_PX},
+             "x": 0.0, "xref": "container", "xanchor": "left", "pad": {"l": 8},
+             "y": 1.0, "yref": "container", "yanchor": "top"}
+    title["pad"]["t"] = 8
+    if detail:
+        title["subtitle"] = {"text": html.escape(clip_text(detail, DETAIL_MAX_CHARS)),
+                             "font": {"size": DETAIL_FONT_PX, "color": "#666"}}
+    return title
+
+
+def _legend(height: int, top_px: int, bottom_px: int) -> dict:
+    """A horizontal legend under the plot, inside the figure: plotly widens the bottom
+    margin to hold its rows; ``y`` puts it below the tick labels (a fraction of the plot
+    area, estimated from the figure's height and margins)."""
+    plot_px = max(height - top_px - bottom_px - 40, 60)
+    return {"orientation": "h", "x": 0.0, "xanchor": "left",
+            "y": -LEGEND_GAP_PX / plot_px, "yanchor": "top",
+            "font": {"size": LEGEND_FONT_PX}, "itemwidth": 30, "tracegroupgap": 0,
+            "bgcolor": "rgba(255,255,255,0)"}
+
+
+def _base_layout(title: str, height: int = 260, detail: str | None = None, **kw) -> dict:
+    top = _TOP_PX[1 if detail else 0]
+    bottom = 8
     layout = {
-        "title": {"text": title, "font": {"size": 13}, "x": 0.02},
+        "title": _title(title, detail),
         "height": height,
-        "margin": {"l": 48, "r": 12, "t": 30, "b": 36},
-        "legend": {"orientation": "h", "y": -0.22, "font": {"size": 10}},
-        "xaxis": {"title": {"text": "t (s)"}},
+        "margin": {"l": 48, "r": 12, "t": top, "b": bottom},
+        "legend": _legend(height, top, bottom),
+        "xaxis": {"ticksuffix": " s", "automargin": True},
         "template": "plotly_white",
         "uirevision": "keep",
     }
@@ -264,27 +396,28 @@ def detection_figure(view: RunView) -> PanelFigure:
     """Detection statistic vs threshold (top), normalised statistic and the theoretical
     detection probability of the injected fault (bottom) over time."""
     t = view.t_s
+    tx = time_axis(t)
     stat = view.column("statistic")
     thr = view.column("threshold")
     with np.errstate(invalid="ignore", divide="ignore"):
         norm = stat / thr
     alarm = np.asarray(view.table.get("alarm", np.zeros(t.shape, bool)), dtype=bool)
     data = [
-        {"type": "scatter", "x": t, "y": stat, "mode": "lines", "name": "statistic",
+        {"type": "scatter", **tx, "y": stat, "mode": "lines", "name": "statistic",
          "line": {"color": "#1f5eea", "width": 1.5}, "xaxis": "x", "yaxis": "y"},
-        {"type": "scatter", "x": t, "y": thr, "mode": "lines", "name": "threshold",
+        {"type": "scatter", **tx, "y": thr, "mode": "lines", "name": "threshold",
          "line": {"color": "#d62728", "dash": "dash", "width": 1.5}, "xaxis": "x",
          "yaxis": "y"},
         {"type": "scatter", "x": t[alarm], "y": stat[alarm], "mode": "markers",
          "name": "alarm", "marker": {"color": "#d62728", "size": 5, "symbol": "x"},
          "xaxis": "x", "yaxis": "y"},
-        {"type": "scatter", "x": t, "y": norm, "mode": "lines", "name": "statistic / threshold",
+        {"type": "scatter", **tx, "y": norm, "mode": "lines", "name": "statistic / threshold",
          "line": {"color": "#1f5eea", "width": 1.2}, "xaxis": "x", "yaxis": "y2",
          "showlegend": True},
     ]
     pd = view.column("pd_theory")
     if pd is not None:
-        data.append({"type": "scatter", "x": t, "y": pd, "mode": "lines",
+        data.append({"type": "scatter", **tx, "y": pd, "mode": "lines",
                      # The engine's ncx2 probability of the snapshot chi-square test on the
                      # same epoch: a reference for every algorithm, exact only for that test.
                      "name": "P_d theory (snapshot χ² test)",
@@ -294,25 +427,28 @@ def detection_figure(view: RunView) -> PanelFigure:
     shapes.append({"type": "line", "xref": "paper", "yref": "y2", "x0": 0, "x1": 1, "y0": 1,
                    "y1": 1, "line": {"color": "#d62728", "dash": "dash", "width": 1}})
     layout = _base_layout(
-        f"Detection: statistic vs threshold ({view.algorithm})", height=380,
-        xaxis={"title": {"text": "t (s)"}, "anchor": "y2"},
-        yaxis={"title": {"text": "statistic"}, "domain": [0.55, 1.0], "type": "log"},
-        yaxis2={"title": {"text": "normalised"}, "domain": [0.0, 0.45], "type": "log"},
+        "Detection: statistic vs threshold", height=400, detail=view.algorithm,
+        xaxis={"ticksuffix": " s", "automargin": True, "anchor": "y2"},
+        yaxis={"title": {"text": "statistic"}, "domain": [0.55, 1.0], "type": "log",
+               "exponentformat": "power"},
+        yaxis2={"title": {"text": "normalised"}, "domain": [0.0, 0.45], "type": "log",
+                "exponentformat": "power"},
         yaxis3={"title": {"text": "P_d theory", "standoff": 2}, "overlaying": "y2",
                 "side": "right", "range": [0, 1.05], "tickvals": [0, 0.5, 1],
                 "showgrid": False},
         shapes=shapes,
     )
-    layout["margin"] = {"l": 48, "r": 40, "t": 30, "b": 36}
+    layout["margin"] = dict(layout["margin"], r=40)
     return PanelFigure("detection", "Detection", data, layout, t_s=t)
 
 
 def per_sat_figure(view: RunView, key: str, title: str | None = None,
                    y_title: str | None = None, log_y: bool = False) -> PanelFigure:
     """One line per satellite of ``view.per_sat[key]`` (E, S) over time; the satellites
-    with an injected fault are drawn thick, the rest thin; the algorithm's isolated
-    satellite at each alarm epoch is marked."""
+    with an injected fault are drawn thick and named in the legend, the others thin under
+    one legend entry; the algorithm's isolated satellite at each alarm epoch is marked."""
     t = view.t_s
+    tx = time_axis(t)
     values = np.asarray(view.per_sat[key], dtype=float)
     faulty = np.any(view.faulted, axis=0)
     data = []
@@ -320,9 +456,16 @@ def per_sat_figure(view: RunView, key: str, title: str | None = None,
         col = values[:, j]
         if not np.isfinite(col).any():
             continue
-        data.append({"type": "scatter", "x": t, "y": col, "mode": "lines", "name": name,
-                     "line": {"width": 2.6 if faulty[j] else 1.0},
-                     "opacity": 1.0 if faulty[j] else 0.7})
+        trace = {"type": "scatter", **tx, "y": col, "mode": "lines", "name": name,
+                 "line": {"width": 2.6 if faulty[j] else 1.0},
+                 "opacity": 1.0 if faulty[j] else 0.7}
+        if not faulty[j]:  # under one legend entry (the hover still names each)
+            trace.update(legendgroup="others", showlegend=False)
+        data.append(trace)
+    if any(tr.get("legendgroup") == "others" for tr in data):
+        data.insert(0, {"type": "scatter", "x": [None], "y": [None], "mode": "lines",
+                        "name": "fault-free satellites", "legendgroup": "others",
+                        "line": {"color": "#999", "width": 1.0}, "hoverinfo": "skip"})
     isolated = view.isolated_idx
     alarm = view.table.get("alarm")
     if isolated is not None and alarm is not None:
@@ -335,8 +478,10 @@ def per_sat_figure(view: RunView, key: str, title: str | None = None,
                          "text": [view.sat_names[k] for k in iso[sel]],
                          "hovertemplate": "%{text}: %{y:.3g}<extra>isolated</extra>"})
     layout = _base_layout(title or f"Per satellite: {key}", height=300,
+                          detail="thick: faulty (truth); o: isolated",
                           yaxis={"title": {"text": y_title or key},
-                                 "type": "log" if log_y else "linear"},
+                                 "type": "log" if log_y else "linear",
+                                 "exponentformat": "power"},
                           shapes=_fault_windows(view))
     return PanelFigure(f"per_sat:{key}", title or key, data, layout, t_s=t)
 
@@ -349,8 +494,13 @@ def isolation_figure(view: RunView) -> PanelFigure:
 
 def error_figure(view: RunView) -> PanelFigure:
     """Horizontal (and vertical) position error before vs after isolation, with the alert
-    limits and any protection levels the algorithm returns (``hpl_m``, ``vpl_m``)."""
+    limits and any protection levels the algorithm returns (``hpl_m``, ``vpl_m``).
+
+    The error axis is logarithmic: a metre-level error after exclusion and a alert limit
+    of hundreds of metres are both readable (a linear axis scaled by the HAL flattens the
+    first)."""
     t = view.t_s
+    tx = time_axis(t)
     data = []
     styles = [
         (("hpe_before_m",), "HPE before", "#7f7f7f", "solid", 1.2),
@@ -364,24 +514,28 @@ def error_figure(view: RunView) -> PanelFigure:
         col = view.column(*names)
         if col is None:
             continue
-        data.append({"type": "scatter", "x": t, "y": np.abs(col) if "pe_" in names[0] else col,
+        data.append({"type": "scatter", **tx,
+                     "y": np.abs(col) if "pe_" in names[0] else col,
                      "mode": "lines", "name": label,
                      "line": {"color": color, "dash": dash, "width": width},
                      "visible": True if names[0].startswith("h") else "legendonly"})
     # Other protection levels an algorithm returns (hpl_nobaro_m, vpl_classic_m, ...).
     for key in view.table:
         if PROTECTION_LEVEL.match(key) and key not in ("hpl_m", "vpl_m"):
-            data.append({"type": "scatter", "x": t, "y": view.column(key), "mode": "lines",
+            data.append({"type": "scatter", **tx, "y": view.column(key), "mode": "lines",
                          "name": key, "line": {"dash": "dash", "width": 1.0},
                          "visible": "legendonly"})
     shapes = _fault_windows(view)
     shapes.append({"type": "line", "xref": "paper", "yref": "y", "x0": 0, "x1": 1,
                    "y0": view.hal_m, "y1": view.hal_m,
                    "line": {"color": "#d62728", "dash": "dash", "width": 1}})
-    layout = _base_layout("Position error before vs after exclusion", height=300,
-                          yaxis={"title": {"text": "error (m)"}, "rangemode": "tozero"},
+    layout = _base_layout("Position error", height=300,
+                          detail=f"before vs after exclusion; HAL {view.hal_m:g} m dashed",
+                          yaxis={"title": {"text": "error (m)"}, "type": "log",
+                                 "exponentformat": "power"},
                           shapes=shapes)
-    layout["annotations"] = [{"xref": "paper", "yref": "y", "x": 1.0, "y": view.hal_m,
+    layout["annotations"] = [{"xref": "paper", "yref": "y", "x": 1.0,
+                              "y": float(np.log10(view.hal_m)) if view.hal_m > 0 else 0.0,
                               "text": "HAL", "showarrow": False, "xanchor": "right",
                               "yanchor": "bottom", "font": {"size": 10, "color": "#d62728"}}]
     return PanelFigure("errors", "Position error", data, layout, t_s=t)
@@ -391,9 +545,10 @@ def columns_figure(view: RunView, keys: list[str]) -> PanelFigure:
     """Generic panel: one line per extra per-epoch column (for algorithm outputs the
     dashboard has no dedicated panel for yet, e.g. ``n_eff``, ``beta``)."""
     t = view.t_s
-    data = [{"type": "scatter", "x": t, "y": view.column(k), "mode": "lines", "name": k}
+    tx = time_axis(t)
+    data = [{"type": "scatter", **tx, "y": view.column(k), "mode": "lines", "name": k}
             for k in keys]
-    layout = _base_layout("Algorithm outputs: " + ", ".join(keys), height=260,
+    layout = _base_layout("Algorithm outputs", height=280, detail=", ".join(keys),
                           shapes=_fault_windows(view))
     return PanelFigure("columns", "Algorithm outputs", data, layout, t_s=t)
 
@@ -443,13 +598,19 @@ def particle_figure(view: RunView) -> PanelFigure:
         ]
         return traces, {"annotations": []}
 
-    layout = _base_layout("Particle cloud of the main filter (now)", height=340,
+    layout = _base_layout("Particle cloud (now)", height=360,
+                          detail="main filter; offsets from the true position",
                           xaxis={"title": {"text": "East (m)"}, "range": [-half, half],
                                  "zeroline": True},
                           yaxis={"title": {"text": "North (m)"}, "range": [-half, half],
                                  "zeroline": True, "scaleanchor": "x"})
+    layout["legend"] = dict(layout["legend"], y=-0.2)
     return PanelFigure("particles", "Particle cloud", [], layout, dynamic=now,
                        t_s=view.t_s, marker=False)
+
+
+#: Most epochs drawn per satellite track in the sky plot.
+SKY_TRACK_POINTS = 120
 
 
 def sky_figure(view: RunView) -> PanelFigure:
@@ -460,11 +621,14 @@ def sky_figure(view: RunView) -> PanelFigure:
     above = zen_deg <= 90.0
     tracks_r = np.where(above, zen_deg, np.nan)
     data = []
-    # All tracks in one trace, NaN-separated, to keep the figure light.
+    # All tracks in one trace, NaN-separated, at most SKY_TRACK_POINTS epochs each (a
+    # track is a smooth arc; every epoch would make each redraw of the sky plot, one per
+    # time step, draw thousands of points).
     n_e, n_s = az_deg.shape
+    keep = np.unique(np.r_[np.arange(0, n_e, max(1, -(-n_e // SKY_TRACK_POINTS))), n_e - 1])
     sep = np.full((1, n_s), np.nan)
-    r_all = np.concatenate([tracks_r, sep], axis=0).T.ravel()
-    th_all = np.concatenate([az_deg, sep], axis=0).T.ravel()
+    r_all = np.concatenate([tracks_r[keep], sep], axis=0).T.ravel()
+    th_all = np.concatenate([az_deg[keep], sep], axis=0).T.ravel()
     data.append({"type": "scatterpolar", "r": r_all, "theta": th_all, "mode": "lines",
                  "name": "tracks", "line": {"color": "rgba(120,120,120,0.45)", "width": 1},
                  "hoverinfo": "skip", "showlegend": False})
@@ -485,7 +649,7 @@ def sky_figure(view: RunView) -> PanelFigure:
             })
         return traces, {}
 
-    layout = _base_layout("Sky plot (now)", height=360)
+    layout = _base_layout("Sky plot (now)", height=380)
     layout.pop("xaxis")
     layout["polar"] = {
         "radialaxis": {"range": [0, 90], "tickvals": [0, 30, 60, 90],
@@ -494,7 +658,8 @@ def sky_figure(view: RunView) -> PanelFigure:
         "angularaxis": {"rotation": 90, "direction": "clockwise",
                         "tickvals": [0, 90, 180, 270], "ticktext": ["N", "E", "S", "W"]},
     }
-    layout["margin"] = {"l": 30, "r": 30, "t": 40, "b": 30}
+    layout["margin"] = {"l": 30, "r": 30, "t": _TOP_PX[0] + 12, "b": 8}
+    layout["legend"] = dict(layout["legend"], y=-0.06)
     ring = np.linspace(0.0, 360.0, 73)
     data.append({"type": "scatterpolar", "r": np.full(ring.shape, 90.0 - view.mask_deg),
                  "theta": ring, "mode": "lines", "name": "mask", "hoverinfo": "skip",

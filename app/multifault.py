@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .figures import PanelFigure, RunView, _base_layout, _fault_windows
+from .figures import PanelFigure, RunView, _base_layout, _fault_windows, time_axis
 from .panels import PanelSpec, register_panel
 
 #: per-satellite score -> its threshold column and axis label.
@@ -27,6 +27,7 @@ def multifault_figure(view: RunView, key: str = "mf") -> PanelFigure:
     (bottom) over time."""
     thr_key, label = SCORES[key]
     t = view.t_s
+    tx = time_axis(t)
     score = np.asarray(view.per_sat[key], dtype=float)
     faulty = view.faulted
     ever = faulty.any(axis=0)
@@ -34,13 +35,13 @@ def multifault_figure(view: RunView, key: str = "mf") -> PanelFigure:
     for j, name in enumerate(view.sat_names):
         if not np.isfinite(score[:, j]).any():
             continue
-        data.append({"type": "scatter", "x": t, "y": score[:, j], "mode": "lines",
+        data.append({"type": "scatter", **tx, "y": score[:, j], "mode": "lines",
                      "name": name, "legendgroup": name, "showlegend": bool(ever[j]),
                      "line": {"width": 2.6 if ever[j] else 0.9},
                      "opacity": 1.0 if ever[j] else 0.55, "xaxis": "x", "yaxis": "y"})
     thr = view.column(thr_key)
     if thr is not None:
-        data.append({"type": "scatter", "x": t, "y": thr, "mode": "lines",
+        data.append({"type": "scatter", **tx, "y": thr, "mode": "lines",
                      "name": thr_key,
                      "line": {"color": "#d62728", "dash": "dash", "width": 1.8},
                      "xaxis": "x", "yaxis": "y"})
@@ -59,11 +60,11 @@ def multifault_figure(view: RunView, key: str = "mf") -> PanelFigure:
                             "line": {"width": 1.5}},
                  "xaxis": "x", "yaxis": "y2"})
     exact = np.all(view.excluded == faulty, axis=1)
-    title = (f"Multi-fault isolation: {label} vs threshold; isolated set = truth at "
-             f"{100 * exact.mean():.0f}% of epochs ({view.algorithm})")
+    detail = f"isolated set = truth at {100 * exact.mean():.0f}% of epochs"
     layout = _base_layout(
-        title, height=420, shapes=_fault_windows(view),
-        xaxis={"title": {"text": "t (s)"}, "anchor": "y2"},
+        "Multi-fault isolation", height=440, detail=detail,
+        shapes=_fault_windows(view),
+        xaxis={"ticksuffix": " s", "automargin": True, "anchor": "y2"},
         yaxis={"title": {"text": label}, "domain": [0.42, 1.0]},
         yaxis2={"title": {"text": "satellite"}, "domain": [0.0, 0.34], "type": "category",
                 "categoryorder": "array", "categoryarray": names},

@@ -11,7 +11,18 @@ value, so touching a control without changing it leaves the scenario identical.
 A recompute runs the scenario through :func:`raimcore.pipeline.run_scenario`, rebuilds the
 panels the run calls for (the panel registry, :mod:`app.panels`), the teaching text and
 the verdict (from the run's :class:`~raimcore.scoring.Summary`), and updates the 3D scene.
-Moving the time slider only moves the scene and the panels' time markers.
+A figure whose static part did not change is not sent again. Moving the time slider (or
+Play) moves the scene and sends the page one small time update (the cursor's time and the
+sky plot's "now" markers: :mod:`app.page`), never whole figures. Runs are kept in a cache
+shared by all sessions (:class:`ResultCache`: a scenario run in one tab is instant in
+another).
+
+Sizes follow the browser window (:mod:`app.page`): the control and plot panels take
+their widths from it, so that the 3D view keeps at least half of the window, and every
+plot is drawn at its declared height.
+
+A closed tab's session lets go of everything (:meth:`Session.close`): its worker and Play
+threads end, its figures, runs and handles are dropped.
 """
 
 from __future__ import annotations
@@ -25,6 +36,7 @@ import shutil
 import tempfile
 import threading
 import time
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -40,7 +52,7 @@ from raimcore.pipeline import run_scenario as _run_scenario
 from raimcore.scenario import Scenario, list_scenarios, load_scenario, scenario_keys
 from raimcore.schema import is_input_error as input_error
 
-from . import panels, teaching
+from . import page, panels, teaching
 from .controls import FAULT_KEYS, KeyControl
 from .figures import PanelFigure, RunView
 from .scene import SceneRun, SkyScene
@@ -50,18 +62,98 @@ log = logging.getLogger(__name__)
 NO_FAULT = "(no fault)"
 NO_OUTPUT = "(none)"
 PLAY_SPEEDS = ("1x", "5x", "20x", "60x")
+#: Frames per second Play draws (announced in its hint).
 PLAY_FPS = 8.0
-PLOT_PANEL_WIDTH = 500
 #: A new fault's size in the editor (and what the inactive size control shows).
 NEW_FAULT_BIAS_M = 50.0
 NEW_FAULT_RATE_MPS = 1.0
-RESULT_CACHE_SIZE = 8  # recent runs kept per session: going back to a setting is instant
+#: Runs kept for all sessions together: going back to a setting, or opening a scenario
+#: another tab ran, is instant. At most this many, and at most RESULT_CACHE_BYTES of
+#: arrays.
+RESULT_CACHE_SIZE = 16
+RESULT_CACHE_BYTES = 600 * 2**20
+#: Pause (s) after flushing a batch of GUI messages before queueing 3D-scene ones.
+BATCH_GAP_S = 0.002
+#: How long closing a session waits for its running job (s).
+CLOSE_WAIT_S = 10.0
 #: The scenario keys the dashboard shows, with their labels (unit from the key).
 SCENARIO_CONTROLS = (("sigma_m", "Noise sigma"), ("noise_corr_s", "Noise correlation"),
                      ("p_fa", "P_fa"), ("mask_deg", "Elevation mask"), ("seed", "Random seed"))
 #: The fault editor's keyed controls, with their labels.
 FAULT_CONTROLS = (("kind", "Type"), ("bias_m", "Bias"), ("rate_mps", "Ramp rate"),
                   ("t0_s", "Fault start"), ("t1_s", "Fault end"))
+
+class ResultCache:
+    """Scenario runs shared by every session of the process, least recently used first
+    out (a run is a pure function of its scenario: its seed fixes every random draw).
+
+    Parameters
+    ----------
+    max_items : at most this many runs.
+    max_bytes : at most this many bytes of numpy arrays (:func:`result_nbytes`); the
+        newest run is always kept.
+    """
+
+    def __init__(self, max_items: int = RESULT_CACHE_SIZE,
+                 max_bytes: int = RESULT_CACHE_BYTES) -> None:
+        self.max_items, self.max_bytes = int(max_items), int(max_bytes)
+        self._items: OrderedDict[str, tuple[ScenarioResult, int]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def key(scenario: Scenario) -> str:
+        return repr(scenario.to_dict())
+
+    def get(self, scenario: Scenario) -> ScenarioResult | None:
+        key = self.key(scenario)
+        with self._lock:
+            item = self._items.get(key)
+            if item is None:
+                return None
+            self._items.move_to_end(key)
+            return item[0]
+
+    def put(self, scenario: Scenario, result: ScenarioResult) -> None:
+        key = self.key(scenario)
+        size = result_nbytes(result)
+        with self._lock:
+            self._items[key] = (result, size)
+            self._items.move_to_end(key)
+            while len(self._items) > 1 and (len(self._items) > self.max_items
+                                            or self.nbytes > self.max_bytes):
+                self._items.popitem(last=False)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(n for _, n in self._items.values())
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+
+
+def result_nbytes(obj, _depth: int = 0) -> int:
+    """Bytes of the numpy arrays in a run (dataclasses, dicts, lists, tuples walked)."""
+    if isinstance(obj, np.ndarray):
+        return int(obj.nbytes)
+    if _depth > 4:
+        return 0
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return sum(result_nbytes(getattr(obj, f.name), _depth + 1)
+                   for f in dataclasses.fields(obj))
+    if isinstance(obj, dict):
+        return sum(result_nbytes(v, _depth + 1) for v in obj.values())
+    if isinstance(obj, list | tuple):
+        return sum(result_nbytes(v, _depth + 1) for v in obj)
+    return 0
+
+
+#: The process's run cache (every session uses it).
+RESULTS = ResultCache()
+
 
 def run_view(result: ScenarioResult) -> RunView:
     """The figures' view of a scenario result."""
@@ -86,6 +178,23 @@ def scene_run(result: ScenarioResult, view: RunView) -> SceneRun:
     return SceneRun(t_s=data.t_s, sat_names=data.sat_names, pos_sv_ecef_m=data.pos_sv_ecef_m,
                     pos_rx_ecef_m=result.truth.pos_rx_ecef_m, state=view.states(),
                     mask_deg=result.scenario.mask_deg)
+
+
+def _probe_window(page_script: page.PageScript, session_ref) -> None:
+    """Ask the page for its window size; give it to the session if it is still open."""
+    size = page_script.probe_viewport()
+    session = session_ref()
+    if size is not None and session is not None and not session._closed:
+        session.scheduler.submit("layout", lambda: session.set_window(*size))
+
+
+def _camera_aspect(camera) -> float | None:
+    """The 3D view's width/height as the camera last reported it, or None."""
+    try:
+        w, h = int(camera.image_width), int(camera.image_height)
+    except (AttributeError, TypeError, ValueError):
+        return None
+    return w / h if w > 0 and h > 0 else None
 
 
 def fault_label(k: int, f: Fault) -> str:
@@ -124,13 +233,14 @@ class Session:
         self.gui = client.gui
         self.scenario = scenario
         self.presets = dict(presets or {})
-        self.scheduler = CoalescingScheduler(("recompute", "panel", "time"),
+        self.scheduler = CoalescingScheduler(("layout", "recompute", "panel", "time"),
                                              on_error=self._show_error)
         self.timing = Timing()
         self.result: ScenarioResult | None = None
         self.view: RunView | None = None
         self.figures: dict[str, PanelFigure] = {}
         self.plot_handles: dict[str, object] = {}
+        self._sent: dict[str, tuple[str, float]] = {}  # key -> (rev, aspect) on the page
         self.i_epoch = 0
         # Set while this thread writes controls itself (their callbacks then ignore the
         # change). Thread-local: the worker refreshing controls must not swallow a user
@@ -141,19 +251,43 @@ class Session:
         self._play_thread: threading.Thread | None = None
         self.option_controls: dict[str, KeyControl] = {}
         self._edit_lock = threading.RLock()  # one edit of the scenario at a time
-        self._cache: OrderedDict[str, ScenarioResult] = OrderedDict()
+        self._results = RESULTS
         self._upload_dir: str | None = None
-        self.scene = SkyScene(client.scene)
+        self._closed = False
+        # The page: time updates and the window's size (app.page).
+        self.page = page.PageScript(client)
+        self._time_seq = 0
+        self.window_px = page.DEFAULT_WINDOW
+        self.controls_px, self.plots_px = page.side_panel_widths(self.window_px[0])
+        self._probe_thread: threading.Thread | None = None
+        self._probe_aspect: float | None = None
+        self._camera_hooked = False
+        # The 3D scene is built after the first plots are sent (_recompute): the page then
+        # draws the plots before the Earth's meshes (the first frame of a software-rendered
+        # 3D view takes about a second).
+        self.scene: SkyScene | None = None
         self._build_gui()
         self.request_recompute()
+        self._probe_window()
 
     # -- GUI construction --------------------------------------------------------------
     def _build_gui(self) -> None:
+        """The control panel (left), the plot panel (right, one tab per view), then the
+        callbacks. A new tab is one more ``with self.plot_panel.add_tab(...)`` block in
+        :meth:`_build_side_panel`."""
+        self.status = self.gui.add_markdown("**Starting...**")
+        self.verdict_md = self.gui.add_markdown("")
+        self._build_controls()
+        self._build_side_panel()
+        self._apply_panel_widths()
+        self._connect_controls()
+        self._build_option_controls()
+        self._sync_fault_controls()
+
+    def _build_controls(self) -> None:
         gui = self.gui
         s = self.scenario
         keys = scenario_keys()
-        self.status = gui.add_markdown("**Starting...**")
-        self.verdict_md = gui.add_markdown("")
         self.controls: dict[str, KeyControl] = {}
         with gui.add_folder("Scenario"):
             names = list(self.presets) or [s.name]
@@ -195,7 +329,9 @@ class Session:
             self.fault_remove = gui.add_button("Remove fault")
         with gui.add_folder("Time"):
             self.time = gui.add_slider("t (s)", 0.0, max(t_end, s.step_s), s.step_s, 0.0)
-            self.play = gui.add_checkbox("Play", False)
+            self.play = gui.add_checkbox(
+                "Play", False, hint=f"Play the run: {PLAY_FPS:g} frames per second; "
+                                    "Speed = simulated seconds per second")
             self.speed = gui.add_dropdown("Speed", PLAY_SPEEDS, initial_value="5x")
         with gui.add_folder("Recording (RINEX)", expand_by_default=s.source == "rinex"):
             self.rec_obs = gui.add_text("Observation file", s.obs,
@@ -212,20 +348,23 @@ class Session:
         with gui.add_folder("Export", expand_by_default=False):
             self.export_csv = gui.add_button("Download table (CSV)")
             self.export_html = gui.add_button("Download figures (HTML)")
-        # Plots and teaching text in their own dockable panel.
+
+    def _build_side_panel(self) -> None:
+        """Plots and teaching text in their own panel, docked right."""
+        gui = self.gui
         self.plot_panel = gui.add_panel()
         with self.plot_panel.add_tab("Plots"):
             self.per_sat_pick = gui.add_dropdown("Per-satellite panel", [NO_OUTPUT])
             self.plots_folder = gui.add_folder("Panels")
+            self.page.attach(gui)  # hidden: carries the time updates to the plots
         with self.plot_panel.add_tab("Learn"):
             self.teach_md = gui.add_markdown("")
             with gui.add_folder("Report on this scenario", expand_by_default=False):
                 self.report_md = gui.add_markdown(scenario_report_markdown(self.scenario))
         self.plot_panel.dock_right()
-        self.plot_panel.set_width(PLOT_PANEL_WIDTH)
-        gui.main_panel.dock_left()
-        gui.main_panel.set_width(340)
+        self.gui.main_panel.dock_left()
 
+    def _connect_controls(self) -> None:
         for name, ctl in self.controls.items():
             ctl.handle.on_update(lambda _e, c=ctl, n=name: self._on_key(
                 c, lambda v: self.scenario.replace(**{n: v})))
@@ -249,8 +388,62 @@ class Session:
                                                                  self.rec_nav))
         self.export_csv.on_click(lambda _e: self.download_csv())
         self.export_html.on_click(lambda _e: self.download_html())
-        self._build_option_controls()
-        self._sync_fault_controls()
+
+    def _make_scene(self) -> SkyScene:
+        """The 3D scene of this client (built with the first run)."""
+        return SkyScene(self.client.scene)
+
+    # -- sizes ----------------------------------------------------------------------------
+    def _apply_panel_widths(self) -> None:
+        self.gui.main_panel.set_width(self.controls_px)
+        self.plot_panel.set_width(self.plots_px)
+
+    def plot_aspect(self, fig: PanelFigure) -> float:
+        """viser's aspect that draws ``fig`` at its height in the plot panel."""
+        return page.plot_aspect(fig.height_px, self.plots_px)
+
+    def set_window(self, width_px: int, height_px: int) -> None:
+        """The browser window is ``width_px`` x ``height_px``: side panels sized from it
+        (the 3D view keeps at least half), plots kept at their heights."""
+        self.window_px = (int(width_px), int(height_px))
+        widths = page.side_panel_widths(width_px)
+        if widths == (self.controls_px, self.plots_px):
+            return
+        self.controls_px, self.plots_px = widths
+        self._apply_panel_widths()
+        for key, handle in list(self.plot_handles.items()):
+            fig = self.figures.get(key)
+            if fig is not None:
+                aspect = self.plot_aspect(fig)
+                handle.aspect = aspect
+                rev = self._sent.get(key, ("", 0.0))[0]
+                self._sent[key] = (rev, aspect)
+
+    def _probe_window(self) -> None:
+        """Ask the page for its window size (on a short-lived thread: the answer takes a
+        round trip); a camera report whose aspect changed (a resized window) asks again."""
+        if not self.page.live or self._closed:
+            return
+        if self._probe_thread is not None and self._probe_thread.is_alive():
+            return
+        cam = getattr(self.client, "camera", None)
+        if not self._camera_hooked and cam is not None:
+            cam.on_update(self._on_camera)
+            self._camera_hooked = True
+        self._probe_aspect = _camera_aspect(cam)
+        # The thread holds the page, not the session: a tab closed while it waits for the
+        # answer lets its session go at once (the thread ends with the connection).
+        self._probe_thread = threading.Thread(
+            target=_probe_window, args=(self.page, weakref.ref(self)), daemon=True,
+            name="raim-window-probe")
+        self._probe_thread.start()
+
+    def _on_camera(self, camera) -> None:
+        aspect = _camera_aspect(camera)
+        if aspect is None or self._closed:
+            return
+        if self._probe_aspect is None or abs(aspect / self._probe_aspect - 1.0) > 0.02:
+            self._probe_window()
 
     def _build_option_controls(self) -> None:
         """One control per option of the scenario's algorithm (``AlgorithmSpec.options``),
@@ -615,6 +808,8 @@ class Session:
             log.info("run refused: %s", exc)  # bad input: one line, no traceback
             self._show_error(exc)
             return
+        if self._closed:
+            return
         t1 = time.perf_counter()
         view = run_view(result)
         figs = {key: build(view)
@@ -623,16 +818,22 @@ class Session:
         t2 = time.perf_counter()
         self.result, self.view, self.figures = result, view, figs
         self.i_epoch = self._time_index(float(self.time.value))
+        # Plots first, in batches of GUI messages of their own: the page draws those at
+        # once, while a batch with 3D-scene messages waits for the 3D view's next frame.
+        self.verdict_md.content = f"**Verdict.** {html.escape(verdict)}"
+        self._push_figures()
+        self._flush_batch()
         with self.client.atomic():
-            self._push_figures()
+            if self.scene is None:
+                self.scene = self._make_scene()
             self.scene.i_epoch = self.i_epoch
             self.scene.set_run(scene_run(result, view))
-            self.verdict_md.content = f"**Verdict.** {html.escape(verdict)}"
         t3 = time.perf_counter()
         tm = self.timing
         tm.run_s, tm.figures_s, tm.push_s, tm.total_s = t1 - t0, t2 - t1, t3 - t2, t3 - t0
         tm.n_recomputes += 1
         tm.history.append((tm.run_s, tm.figures_s, tm.push_s, tm.total_s))
+        del tm.history[:-100]
         self.status.content = (f"**{scenario.name}** · {len(result.measurements.t_s)} "
                                f"epochs · {len(result.measurements.sat_names)} satellites · "
                                f"update "
@@ -642,6 +843,7 @@ class Session:
         self.rec_use_corr.visible = scenario.source == "rinex"
         self._refresh_fault_sats()
         self._refresh_per_sat_pick()
+        self.client.flush()
 
     def _refresh_per_sat_pick(self) -> None:
         keys = panels.per_sat_keys(self.view) or [NO_OUTPUT]
@@ -664,40 +866,52 @@ class Session:
             return
         from .figures import per_sat_figure
 
-        fig = per_sat_figure(self.view, self.per_sat_pick.value)
-        self.figures["per_sat"] = fig
-        self.plot_handles["per_sat"].figure = fig.at(self.i_epoch)
+        self.figures["per_sat"] = per_sat_figure(self.view, self.per_sat_pick.value)
+        self._push_figures()
 
     def _run_cached(self, scenario: Scenario) -> ScenarioResult:
-        """Run the scenario, or reuse the result of an identical recent one (a run is a
-        pure function of the scenario: its seed fixes every random draw)."""
-        key = repr(scenario.to_dict())
-        result = self._cache.get(key)
+        """Run the scenario, or reuse the result of an identical recent one, from this
+        session or another (:data:`RESULTS`)."""
+        result = self._results.get(scenario)
         if result is None:
             result = _run_scenario(scenario)
-            self._cache[key] = result
-            while len(self._cache) > RESULT_CACHE_SIZE:
-                self._cache.popitem(last=False)
-        else:
-            self._cache.move_to_end(key)
+            self._results.put(scenario, result)
         return result
 
     def _push_figures(self) -> None:
+        """Send the figures the page does not have yet (a new static part or size), then
+        one time update for all of them (:meth:`_send_time`)."""
         keep = set(self.figures)
         for key in list(self.plot_handles):
             if key not in keep:
                 self.plot_handles.pop(key).remove()
+                self._sent.pop(key, None)
+        seq = self._time_seq + 1  # the time update sent right after these figures
+        n_sent = 0
         for order, (key, fig) in enumerate(self.figures.items()):
             handle = self.plot_handles.get(key)
-            payload = fig.at(self.i_epoch)
+            aspect = self.plot_aspect(fig)
             if handle is None:
                 with self.plots_folder:
-                    aspect = PLOT_PANEL_WIDTH / fig.layout["height"]
-                    handle = self.gui.add_plotly(payload, aspect=aspect, order=order)
+                    handle = self.gui.add_plotly(fig.at(self.i_epoch, seq), aspect=aspect,
+                                                 order=order)
                 self.plot_handles[key] = handle
+                n_sent += 1
             else:
-                handle.figure = payload
-                handle.order = order
+                if self._sent.get(key) != (fig.rev, aspect):
+                    handle.figure = fig.at(self.i_epoch, seq)
+                    if handle.aspect != aspect:
+                        handle.aspect = aspect
+                    n_sent += 1
+                if handle.order != order:
+                    handle.order = order
+            self._sent[key] = (fig.rev, aspect)
+            if n_sent == 1 and order == 0:
+                self._flush_batch()  # the top panel is drawn while the others are made
+        if self.plot_handles:
+            # plotly.js is in the page with the first plot.
+            self.page.install_helper(self.time.label)
+        self._send_time(self.i_epoch)
 
     # -- time ---------------------------------------------------------------------------
     def _time_index(self, t_s: float) -> int:
@@ -711,14 +925,41 @@ class Session:
 
     def _apply_time(self) -> None:
         i = self._time_index(float(self.time.value))
-        if i == self.i_epoch and self.scene.i_epoch == i:
+        if self.scene is None or (i == self.i_epoch and self.scene.i_epoch == i):
             return
         self.i_epoch = i
+        self._send_time(i)  # the plots: a GUI batch of its own (see _recompute)
+        self._flush_batch()
         with self.client.atomic():
             self.scene.set_time(i)
-            for key, fig in self.figures.items():
-                if fig.marker or fig.dynamic is not None:
-                    self.plot_handles[key].figure = fig.at(i)
+        self.client.flush()  # now, not at the end of viser's next 16 ms window
+
+    def time_state(self, i_epoch: int) -> dict:
+        """What the page needs to show epoch ``i_epoch`` on the plots it has: the
+        cursor's time and each dynamic figure's traces (:mod:`app.page`)."""
+        t = self.result.measurements.t_s if self.result is not None else np.zeros(1)
+        i = int(np.clip(i_epoch, 0, len(t) - 1))
+        dyn = {}
+        for fig in self.figures.values():
+            st = fig.time_state(i)
+            if st is not None:
+                dyn[fig.key] = st  # the page knows a figure by its key (layout.meta.raim)
+        grid = None
+        if len(t) >= 2:
+            dt = float(t[1] - t[0])
+            if dt > 0 and np.allclose(np.diff(t), dt, rtol=0.0, atol=1e-9 * max(1.0, t[-1])):
+                grid = {"t0": float(t[0]), "dt": dt, "n": int(len(t))}
+        return {"seq": self._time_seq, "t": float(t[i]), "grid": grid, "dyn": dyn}
+
+    def _flush_batch(self) -> None:
+        """Send what is queued as one batch now: flush, and let viser's event loop take
+        it before more is queued (a short sleep releases the GIL to its thread)."""
+        self.client.flush()
+        time.sleep(BATCH_GAP_S)
+
+    def _send_time(self, i_epoch: int) -> None:
+        self._time_seq += 1
+        self.page.send_time(self.time_state(i_epoch))
 
     def _on_play(self) -> None:
         if self.play.value and (self._play_thread is None or not self._play_thread.is_alive()):
@@ -729,7 +970,10 @@ class Session:
             self._play_stop.set()
 
     def _play_loop(self) -> None:
-        while not self._play_stop.wait(1.0 / PLAY_FPS):
+        period = 1.0 / PLAY_FPS
+        t_next_frame = time.monotonic() + period
+        while not self._play_stop.wait(max(t_next_frame - time.monotonic(), 0.0)):
+            t_next_frame = max(t_next_frame + period, time.monotonic())
             speed = float(self.speed.value.rstrip("x"))
             t_max = float(self.time.max)
             t_next = float(self.time.value) + speed / PLAY_FPS
@@ -781,11 +1025,23 @@ class Session:
         except Exception:  # noqa: BLE001 - the client may be gone
             pass
 
-    def close(self) -> None:
+    def close(self, wait_s: float = CLOSE_WAIT_S) -> None:
+        """Let go of everything: stop Play and the worker (waiting up to ``wait_s`` for
+        a running job), drop figures, runs and handles, remove uploads."""
+        self._closed = True
         self._play_stop.set()
         self.scheduler.close()
+        self.scheduler.wait_idle(wait_s)
+        play = self._play_thread
+        if play is not None and play is not threading.current_thread():
+            play.join(timeout=wait_s)
+        self._play_thread = self._probe_thread = None
+        self.figures, self.plot_handles, self._sent = {}, {}, {}
+        self.result = self.view = None
+        self.page.last_state = None
         if self._upload_dir is not None:
             shutil.rmtree(self._upload_dir, ignore_errors=True)
+            self._upload_dir = None
 
 
 def scenario_report_markdown(scenario: Scenario) -> str:

@@ -18,7 +18,7 @@ import pytest
 pytest.importorskip("viser")
 pytest.importorskip("plotly")
 
-from app import figures, panels, scene, teaching  # noqa: E402
+from app import figures, page, panels, scene, teaching  # noqa: E402
 from app.scheduler import CoalescingScheduler  # noqa: E402
 from raimcore.pipeline import run_scenario
 from raimcore.scenario import load_scenario  # noqa: E402
@@ -389,8 +389,18 @@ def test_time_slider_moves_satellites_and_marks_panels(session):
     pos1 = s.scene.sat_positions()
     moved = np.linalg.norm(pos1 - pos0, axis=1)
     assert np.all(moved > 0.5)  # GPS satellites move ~1.4 Mm in 400 s
+    # The panels are not sent again: the page gets one small time update (cursor time
+    # and the sky plot's "now" markers) through the hidden carrier element.
     doc = json.loads(s.plot_handles["detection"]._plotly_json_str)
-    assert any(sh.get("name") == "now" and sh["x0"] == 400.0 for sh in doc["layout"]["shapes"])
+    assert [sh["x0"] for sh in doc["layout"]["shapes"] if sh.get("name") == "now"] == [0.0]
+    sent = page.carried_state(s.page.carrier.content)
+    assert sent == s.page.last_state and sent["t"] == 400.0
+    assert sent["seq"] > doc["layout"]["meta"]["seq"]
+    sky = sent["dyn"]["sky"]
+    assert sky["rev"] == s.figures["sky"].rev
+    excluded = next(tr for tr in sky["traces"] if tr["name"] == "excluded")
+    assert "G10" in excluded["text"]
+    assert len(s.page.carrier.content) < 5000
     # States in the scene: G10 excluded at t = 400 s in the default ramp scenario.
     assert s.scene.sat_colors()["G10"] == figures.STATE_COLORS["excluded"]
     # Raising the mask puts more satellites below it.
@@ -503,3 +513,133 @@ def test_learn_tab_shows_the_scenario_report(session):
     assert session.report_md.content.startswith("# seed002:")
     session.open_scenario(load_scenario("default").replace(name="mine"))
     assert "No report for *mine*" in session.report_md.content
+
+
+# -- sizes, lean time updates, shared runs --------------------------------------------------
+
+def test_plots_are_drawn_at_their_declared_heights(session):
+    """viser's client draws a plot ``width`` wide and ``width * aspect`` tall: with the
+    width a plot has in the plot panel, every panel gets its declared height."""
+    s = session
+    for width_px in (1600, 1000, 1920):
+        s.set_window(width_px, 800)
+        width = page.plot_width(s.plots_px)  # the width the client gives the plot
+        for key, handle in s.plot_handles.items():
+            fig = s.figures[key]
+            assert width * handle.aspect == pytest.approx(fig.height_px, abs=0.5), key
+            assert 200 <= fig.height_px <= 480
+    # The JSON carries its height too (what the HTML export draws).
+    doc = json.loads(s.plot_handles["detection"]._plotly_json_str)
+    assert doc["layout"]["height"] == s.figures["detection"].height_px
+
+
+@pytest.mark.parametrize("width_px", [1000, 1100, 1280, 1440, 1600, 1920, 2560])
+def test_side_panels_leave_the_3d_view_at_least_half_the_window(width_px):
+    left, right = page.side_panel_widths(width_px)
+    assert width_px - left - right >= width_px / 2
+    assert page.CONTROLS_PX[0] <= left <= page.CONTROLS_PX[1]
+    assert page.PLOTS_PX[0] <= right <= page.PLOTS_PX[1]
+    assert page.plot_width(right) >= 229  # the titles are made to fit that (figures)
+
+
+def test_titles_are_short_and_legends_sit_inside_the_figure(default_view):
+    builders = [figures.detection_figure, figures.isolation_figure, figures.error_figure,
+                figures.sky_figure, lambda v: figures.per_sat_figure(v, "fault_size_m"),
+                lambda v: figures.columns_figure(v, ["statistic_after", "nis_plain",
+                                                     "a_long_column_name_m"])]
+    for build in builders:
+        layout = build(default_view).layout
+        title = layout["title"]
+        assert len(title["text"]) <= figures.TITLE_MAX_CHARS
+        sub = title.get("subtitle", {}).get("text", "")
+        assert len(sub) <= figures.DETAIL_MAX_CHARS
+        legend = layout["legend"]
+        # Under the plot, in the figure (plotly widens the bottom margin to hold it).
+        assert legend["yanchor"] == "top" and -0.3 < legend["y"] < 0
+        assert layout.get("margin", {}).get("autoexpand", True)
+
+
+def test_a_time_step_sends_no_figure(dash):
+    """In a real page session: moving the time slider changes no figure handle; the
+    page gets one small update (the carrier) whose sky markers are the run's."""
+    from test_dashboard_ws import ViserWsClient
+
+    known = set(dash.sessions.values())
+    c = ViserWsClient(dash.url)
+    try:
+        (s,) = [x for x in dash.wait_for_sessions(len(known) + 1) if x not in known]
+        _settle(s)
+        assert s.page.live and s.scene is not None
+        carrier = s.page.carrier._impl.uuid
+        plots = {h._impl.uuid for h in s.plot_handles.values()}
+        time.sleep(0.3)
+        n0 = len(c.snapshot())
+        s.time.value = 250.0
+        _settle(s)
+        update = c.wait_for(lambda m: m.get("uuid") == carrier, start=n0)
+        time.sleep(0.3)
+        new = c.snapshot()[n0:]
+        assert not any(m.get("uuid") in plots for m in new)  # no figure re-sent
+        state = page.carried_state(update["updates"]["content"])
+        assert state["t"] == 250.0 and state == s.page.last_state
+        i = s.i_epoch
+        used = next(tr for tr in state["dyn"]["sky"]["traces"] if tr["name"] == "used")
+        sel = (s.view.states()[i] == 0) & (s.view.el_rad[i] >= 0)
+        assert sorted(used["text"]) == sorted(np.asarray(s.view.sat_names)[sel].tolist())
+        assert len(update["updates"]["content"]) < 5000
+    finally:
+        c.close()
+
+
+def test_a_recompute_resends_only_the_figures_that_changed(session):
+    s = session
+    sky_json = s.plot_handles["sky"]._plotly_json_str
+    det_json = s.plot_handles["detection"]._plotly_json_str
+    s.sigma.value = 4.5  # the noise changes every statistic, not the sky's tracks
+    _settle(s)
+    assert s.plot_handles["sky"]._plotly_json_str is sky_json
+    assert s.plot_handles["detection"]._plotly_json_str != det_json
+    # The sky's markers (states) still follow the run: in the time update.
+    assert s.page.last_state["dyn"]["sky"]["rev"] == s.figures["sky"].rev
+
+
+def test_runs_are_shared_between_sessions_and_bounded(dash):
+    from app.session import RESULTS, ResultCache, Session
+
+    a = Session(dash.server, dash.start_scenario, dash.presets)
+    try:
+        _settle(a)
+        b = Session(dash.server, dash.start_scenario, dash.presets)
+        try:
+            _settle(b)
+            assert b.result is a.result  # run once, shown twice
+        finally:
+            b.close()
+    finally:
+        a.close()
+    assert RESULTS.get(dash.start_scenario) is not None
+    small = ResultCache(max_items=2)
+    scenarios = [dash.start_scenario.replace(seed=k) for k in range(3)]
+    for sc in scenarios:
+        small.put(sc, run_scenario(sc.replace(duration_s=20.0)))
+    assert len(small) == 2 and small.get(scenarios[0]) is None
+    tiny = ResultCache(max_bytes=1)  # the newest run is always kept
+    tiny.put(scenarios[0], run_scenario(scenarios[0].replace(duration_s=20.0)))
+    assert len(tiny) == 1
+
+
+def test_a_closed_session_lets_go_of_its_run_and_threads(dash):
+    from app.session import Session
+
+    s = Session(dash.server, dash.start_scenario, dash.presets)
+    _settle(s)
+    s.speed.value = "60x"
+    s.play.value = True
+    time.sleep(0.3)
+    play = s._play_thread
+    assert play.is_alive()
+    s.close()
+    assert not play.is_alive()
+    assert s.figures == {} and s.result is None and s.view is None and s.plot_handles == {}
+    s.sigma.value = 9.0  # a late event on a closed session: ignored, nothing runs
+    assert s.scheduler.wait_idle(1.0) and s.result is None
