@@ -41,6 +41,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="default",
                    help="built-in scenario name or .toml file to start from "
                         "(default %(default)s)")
+    p.add_argument("--lessons", metavar="DIR", action="append", default=[],
+                   help="folder of extra lessons (Markdown + TOML front matter), shown "
+                        "after the built-in ones in the Lessons tab; repeatable")
 
 
 def port_number(text: str) -> int:
@@ -121,10 +124,13 @@ def run(args) -> int:
     else:
         load_scenario(args.scenario)  # fail early, with the scenario error, before serving
         scenario = args.scenario
+    from .lessons import check_lesson_dirs
+
+    check_lesson_dirs(args.lessons)  # a bad lesson file: one line naming it, exit 2
     port, note = choose_port(args.host, args.port)
     if note:
         print(note, flush=True)
     from .server import serve
 
-    serve(args.host, port, scenario)
+    serve(args.host, port, scenario, lesson_dirs=args.lessons)
     return 0

@@ -40,8 +40,11 @@ class Dashboard:
     """
 
     def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
-                 scenario: str | Scenario = DEFAULT_SCENARIO, verbose: bool = True) -> None:
+                 scenario: str | Scenario = DEFAULT_SCENARIO, verbose: bool = True,
+                 lesson_dirs=()) -> None:
         import viser
+
+        self.lesson_dirs = tuple(lesson_dirs)
 
         self.start_scenario: Scenario = (scenario if isinstance(scenario, Scenario)
                                          else load_scenario(scenario))
@@ -89,16 +92,10 @@ class Dashboard:
             rx = receiver_ecef_m(s)
         else:
             rx = geodetic_to_ecef(np.radians(s.lat_deg), np.radians(s.lon_deg), 0.0)
-        up = np.array([0.0, 0.0, 1.0])
-        # Largest orbit radius (Mm): BeiDou GEO/IGSO 42.2, GPS and BeiDou MEO below 28.
-        r_orbit = 42.2 if "BDS" in s.systems else 26.6
-        eye = 1.9 * r_orbit * rx / np.linalg.norm(rx) + 0.45 * r_orbit * up
-        cam = self.server.initial_camera
-        cam.position = tuple(eye)
-        cam.look_at = (0.0, 0.0, 0.0)
-        cam.up = (0.0, 0.0, 1.0)
-        cam.near = 0.05
-        cam.far = 2000.0
+        from . import scene
+
+        r_orbit_m = max(scene.ORBIT_RADIUS_M[sy] for sy in s.systems)
+        scene.aim_camera(self.server.initial_camera, scene.camera_pose(rx, r_orbit_m))
 
     @property
     def port(self) -> int:
@@ -109,7 +106,8 @@ class Dashboard:
         return f"http://{self.server.get_host()}:{self.port}"
 
     def _on_connect(self, client) -> None:
-        session = Session(client, self.start_scenario, self.presets)
+        session = Session(client, self.start_scenario, self.presets,
+                          lesson_dirs=self.lesson_dirs)
         with self._connected:
             self.sessions[client.client_id] = session
             self._connected.notify_all()
@@ -187,9 +185,10 @@ def _refuse_share(*_args, **_kwargs) -> None:
 
 
 def serve(host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
-          scenario: str | Scenario = DEFAULT_SCENARIO) -> None:
-    """Run the dashboard until interrupted (Ctrl-C)."""
-    dash = Dashboard(host, port, scenario)
+          scenario: str | Scenario = DEFAULT_SCENARIO, lesson_dirs=()) -> None:
+    """Run the dashboard until interrupted (Ctrl-C); ``lesson_dirs`` add a teacher's
+    lessons to the Lessons tab."""
+    dash = Dashboard(host, port, scenario, lesson_dirs=lesson_dirs)
     print(f"RAIM Studio dashboard: open {dash.url} in a browser (Ctrl-C to stop)")
     try:
         threading.Event().wait()

@@ -55,6 +55,7 @@ from raimcore.schema import is_input_error as input_error
 from . import page, panels, teaching
 from .controls import FAULT_KEYS, KeyControl
 from .figures import PanelFigure, RunView
+from .lessons import add_lessons_tab
 from .scene import SceneRun, SkyScene
 
 log = logging.getLogger(__name__)
@@ -177,7 +178,8 @@ def scene_run(result: ScenarioResult, view: RunView) -> SceneRun:
     data = result.measurements
     return SceneRun(t_s=data.t_s, sat_names=data.sat_names, pos_sv_ecef_m=data.pos_sv_ecef_m,
                     pos_rx_ecef_m=result.truth.pos_rx_ecef_m, state=view.states(),
-                    mask_deg=result.scenario.mask_deg)
+                    mask_deg=result.scenario.mask_deg, fault_bias_m=view.fault_bias_m,
+                    faulted=view.faulted)
 
 
 def _probe_window(page_script: page.PageScript, session_ref) -> None:
@@ -226,10 +228,12 @@ class Session:
     presets : names (or TOML paths) offered by the scenario preset control.
     """
 
-    def __init__(self, client, scenario: Scenario, presets: dict[str, str] | None = None):
+    def __init__(self, client, scenario: Scenario, presets: dict[str, str] | None = None,
+                 lesson_dirs=()):
         from .scheduler import CoalescingScheduler
 
         self.client = client
+        self.lesson_dirs = tuple(lesson_dirs)
         self.gui = client.gui
         self.scenario = scenario
         self.presets = dict(presets or {})
@@ -333,6 +337,8 @@ class Session:
                 "Play", False, hint=f"Play the run: {PLAY_FPS:g} frames per second; "
                                     "Speed = simulated seconds per second")
             self.speed = gui.add_dropdown("Speed", PLAY_SPEEDS, initial_value="5x")
+        with gui.add_folder("3D view legend", expand_by_default=False):
+            self.legend_md = gui.add_markdown("")
         with gui.add_folder("Recording (RINEX)", expand_by_default=s.source == "rinex"):
             self.rec_obs = gui.add_text("Observation file", s.obs,
                                         hint="path on the server, or upload below")
@@ -361,6 +367,8 @@ class Session:
             self.teach_md = gui.add_markdown("")
             with gui.add_folder("Report on this scenario", expand_by_default=False):
                 self.report_md = gui.add_markdown(scenario_report_markdown(self.scenario))
+        with self.plot_panel.add_tab("Lessons"):
+            self.lessons_tab = add_lessons_tab(self, gui, self.lesson_dirs)
         self.plot_panel.dock_right()
         self.gui.main_panel.dock_left()
 
@@ -391,7 +399,9 @@ class Session:
 
     def _make_scene(self) -> SkyScene:
         """The 3D scene of this client (built with the first run)."""
-        return SkyScene(self.client.scene)
+        scene = SkyScene(self.client.scene, camera=getattr(self.client, "camera", None))
+        scene.attach_legend(self.legend_md)
+        return scene
 
     # -- sizes ----------------------------------------------------------------------------
     def _apply_panel_widths(self) -> None:
@@ -814,7 +824,8 @@ class Session:
         view = run_view(result)
         figs = {key: build(view)
                 for key, build in panels.panels_for(view, self.per_sat_pick.value)}
-        verdict = teaching.verdict(view, result.summary, scenario.p_fa)
+        verdict = teaching.verdict(view, result.summary, scenario.p_fa,
+                                   faults=result.scenario.faults)
         t2 = time.perf_counter()
         self.result, self.view, self.figures = result, view, figs
         self.i_epoch = self._time_index(float(self.time.value))
@@ -1001,7 +1012,8 @@ class Session:
             parts.append(pio.to_html(fig.to_plotly(self.i_epoch), full_html=False,
                                      include_plotlyjs=(k == 0)))
         verdict = (html.escape(teaching.verdict(self.view, self.result.summary,
-                                                self.result.scenario.p_fa))
+                                                self.result.scenario.p_fa,
+                                                faults=self.result.scenario.faults))
                    if self.view is not None else "")
         name = html.escape(self.scenario.name)
         page = ("<!doctype html><html><head><meta charset='utf-8'><title>RAIM Studio: "

@@ -643,3 +643,19 @@ def test_a_closed_session_lets_go_of_its_run_and_threads(dash):
     assert s.figures == {} and s.result is None and s.view is None and s.plot_handles == {}
     s.sigma.value = 9.0  # a late event on a closed session: ignored, nothing runs
     assert s.scheduler.wait_idle(1.0) and s.result is None
+
+
+def test_session_has_lessons_legend_and_the_faults_onset(session):
+    """The Lessons tab lists the built-in lessons, the 3D legend is filled by the scene,
+    and the verdict dates the default ramp from its onset as set (120 s)."""
+    assert len(session.lessons_tab.lessons) >= 10
+    assert "mask" in session.legend_md.content and "excluded" in session.legend_md.content
+    assert "onset at t = 120 s" in session.verdict_md.content
+
+
+def test_dashboard_refuses_a_missing_lessons_folder(tmp_path, capsys):
+    from raimcore.cli import main
+
+    assert main(["dashboard", "--lessons", str(tmp_path / "nope"), "--port", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "--lessons" in err and "not a folder" in err and "Traceback" not in err
