@@ -73,7 +73,7 @@ def check_host(host: str) -> None:
         except OSError:
             continue
     raise ValueError(f"--host {host!r} is not an address of this machine: cannot listen on "
-                     "it (use 127.0.0.1, 0.0.0.0 or one of this machine's addresses)")
+                     "it (use 127.0.0.1 or another address of this machine)")
 
 
 def port_free(host: str, port: int) -> bool:
