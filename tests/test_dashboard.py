@@ -496,7 +496,6 @@ def test_cli_has_a_dashboard_command_on_localhost():
 
 
 def test_app_code_never_defaults_to_all_interfaces():
-    import re
 
     from app.server import DEFAULT_HOST
 
