@@ -179,8 +179,7 @@ def compare_algorithms(s: Scenario | str, names: list[str] | None = None,
         if not who:
             raise SchemaError(f"option {k!r} belongs to none of {', '.join(names)}"
                               f"{did_you_mean(k, [o for sp in specs for o in sp.option_keys])}")
-    base = dataclasses.replace(base, options=()).replace(**keys) if keys else \
-        dataclasses.replace(base, options=())
+    base = dataclasses.replace(base, options=()).replace(**keys)
     per_alg = []
     for spec in specs:  # every scenario and option checked before any simulation
         mine = {k: v for k, v in opts.items() if k in spec.option_keys}

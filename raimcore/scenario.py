@@ -98,20 +98,19 @@ class Restrict:
                 **({"t1_s": self.t1_s} if math.isfinite(self.t1_s) else {})}
 
 
-def _parse_faults(name, value):
-    if isinstance(value, dict | Fault) or isinstance(value, str) or \
-            not isinstance(value, list | tuple):
-        raise SchemaError(f"{name} must be a list of fault tables ([[faults]] in TOML), got "
-                          f"{value!r}"[:200])
-    return tuple(Fault.from_dict(f, f"{name}[{i}]") for i, f in enumerate(value))
+def _table_list(cls, what: str):
+    """A key parser for a list of tables (``[[faults]]``, ``[[restrict]]``), each read by
+    ``cls.from_dict``."""
+    def parse(name, value):
+        if not isinstance(value, list | tuple):
+            raise SchemaError(f"{name} must be a list of {what} ([[{name}]] in TOML), got "
+                              f"{value!r}"[:200])
+        return tuple(cls.from_dict(x, f"{name}[{i}]") for i, x in enumerate(value))
+    return parse
 
 
-def _parse_restrict(name, value):
-    if isinstance(value, dict | Restrict) or isinstance(value, str) or \
-            not isinstance(value, list | tuple):
-        raise SchemaError(f"{name} must be a list of tables ([[restrict]] in TOML), got "
-                          f"{value!r}"[:200])
-    return tuple(Restrict.from_dict(r, f"{name}[{i}]") for i, r in enumerate(value))
+_parse_faults = _table_list(Fault, "fault tables")
+_parse_restrict = _table_list(Restrict, "tables")
 
 
 def _parse_rename(name, value):

@@ -72,13 +72,13 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
     truth = Truth(pos_rx_ecef_m=sky.pos_rx_ecef_m, vel_rx_ecef_mps=sky.vel_rx_ecef_mps,
                   fault_bias_m=bias, used=used)
     if sky.pr_m is not None:  # a recording: measure its errors before any fault is added
-        clean_meas = Measurements(**{**meas.__dict__, "pr_m": np.where(used, clean, np.nan)})
-        no_fault = Truth(**{**truth.__dict__, "fault_bias_m": np.zeros_like(bias)})
+        clean_meas = dataclasses.replace(meas, pr_m=np.where(used, clean, np.nan))
+        no_fault = dataclasses.replace(truth, fault_bias_m=np.zeros_like(bias))
         note = _error_note(clean_meas, no_fault, s)
         if note:
             notes.append(note)
     notes += fault_notes(s.faults, truth, names, t)
-    return Measurements(**{**meas.__dict__, "notes": tuple(notes)}), truth
+    return dataclasses.replace(meas, notes=tuple(notes)), truth
 
 
 def apply_restrict(used, t, sat_names, restrict) -> None:

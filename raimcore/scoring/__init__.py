@@ -18,6 +18,7 @@ Rules, stated once:
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -110,6 +111,11 @@ class Summary:
     def to_dict(self) -> dict[str, Any]:
         """Flat JSON-safe form: rates as ``<name>_rate`` (value), ``<name>_k``, ``<name>_n``,
         ``<name>_ci95``; NaN written as None."""
+        return dict(self._flat)
+
+    @functools.cached_property
+    def _flat(self) -> dict[str, Any]:
+        """:meth:`to_dict`, computed once (each interval is a binomial inversion)."""
         out: dict[str, Any] = {}
         for name in self.__dataclass_fields__:
             v = getattr(self, name)
@@ -125,14 +131,14 @@ class Summary:
         return out
 
     def __getitem__(self, key: str):
-        return self.to_dict()[key]
+        return self._flat[key]
 
     def get(self, key: str, default=None):
-        v = self.to_dict().get(key, default)
+        v = self._flat.get(key, default)
         return default if v is None else v
 
     def __contains__(self, key: str) -> bool:
-        return self.to_dict().get(key) is not None
+        return self._flat.get(key) is not None
 
 
 def _clean(x):
