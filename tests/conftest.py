@@ -23,3 +23,14 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data is not present")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="module")
+def dash():
+    """An in-process dashboard server on a free port, one per test module (the dashboard
+    tests drive its sessions without a browser)."""
+    from app.server import Dashboard
+
+    d = Dashboard(port=0, verbose=False)
+    yield d
+    d.stop()

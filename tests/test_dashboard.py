@@ -259,15 +259,6 @@ def test_verdict_reads_its_counts_from_the_summary():
 
 # -- the live server, driven in-process -------------------------------------------------------
 
-@pytest.fixture(scope="module")
-def dash():
-    from app.server import Dashboard
-
-    d = Dashboard(port=0, verbose=False)
-    yield d
-    d.stop()
-
-
 @pytest.fixture()
 def session(dash):
     from app.session import Session

@@ -24,15 +24,6 @@ from raimcore.scenario import list_scenarios, load_scenario, scenario_keys  # no
 WAIT_S = 120.0
 
 
-@pytest.fixture(scope="module")
-def dash():
-    from app.server import Dashboard
-
-    d = Dashboard(port=0, verbose=False)
-    yield d
-    d.stop()
-
-
 @pytest.fixture()
 def session(dash):
     from app.session import Session
