@@ -520,6 +520,18 @@ class Session:
         old, self.scenario = self.scenario, new
         return new != old or new.to_dict() != old.to_dict()
 
+    def _attempt(self, make: Callable[[], Scenario], revert: Callable[[], None]
+                 ) -> Scenario | None:
+        """``make()`` (a new scenario), or None after refusing a bad input with
+        :meth:`_refuse`; anything else (a bug) is raised."""
+        try:
+            return make()
+        except ValueError as exc:
+            if not input_error(exc):
+                raise
+            self._refuse(exc, revert)
+            return None
+
     def _refuse(self, exc: BaseException, revert: Callable[[], None]) -> None:
         """A refused entry: the control shows the last valid value again, the status line
         says why (one line naming the key), the log gets one line (no traceback)."""
@@ -538,13 +550,10 @@ class Session:
             name = self.algorithm.value
             if name == self.scenario.algorithm:
                 return
-            try:
-                new = self.scenario.replace(algorithm=name)
-            except ValueError as exc:
-                if not input_error(exc):
-                    raise
-                self._refuse(exc, lambda: setattr(self.algorithm, "value",
-                                                  self.scenario.algorithm))
+            new = self._attempt(lambda: self.scenario.replace(algorithm=name),
+                                lambda: setattr(self.algorithm, "value",
+                                                self.scenario.algorithm))
+            if new is None:
                 return
             self._set_scenario(new)
             self._build_option_controls()
@@ -556,12 +565,10 @@ class Session:
         if self.preset.value == self._preset_name:
             return  # the preset open now (edited or not): a touch is not a reload
         target = self.presets.get(self.preset.value, self.preset.value)
-        try:
-            scenario = target if isinstance(target, Scenario) else load_scenario(target)
-        except ValueError as exc:
-            if not input_error(exc):
-                raise
-            self._refuse(exc, lambda: setattr(self.preset, "value", self.scenario.name))
+        scenario = self._attempt(
+            lambda: target if isinstance(target, Scenario) else load_scenario(target),
+            lambda: setattr(self.preset, "value", self.scenario.name))
+        if scenario is None:
             return
         self._preset_name = self.preset.value
         self.open_scenario(scenario)
@@ -743,12 +750,9 @@ class Session:
             sat = self.fault_sat.value
             if sat == self.scenario.faults[self._fault_index].sat:
                 return
-            try:
-                new = self._with_fault_field("sat", sat)
-            except ValueError as exc:
-                if not input_error(exc):
-                    raise
-                self._refuse(exc, self._sync_fault_controls)
+            new = self._attempt(lambda: self._with_fault_field("sat", sat),
+                                self._sync_fault_controls)
+            if new is None:
                 return
             self._set_scenario(new)
         self._sync_fault_controls()
@@ -773,12 +777,9 @@ class Session:
                 t_mid = float(self.scenario.duration_s) / 3.0
                 fault = Fault(sat=free[0], kind="step", t0_s=float(round(t_mid)),
                               bias_m=NEW_FAULT_BIAS_M)
-            try:
-                new = self.scenario.with_faults(*self.scenario.faults, fault)
-            except ValueError as exc:
-                if not input_error(exc):
-                    raise
-                self._refuse(exc, lambda: None)
+            new = self._attempt(lambda: self.scenario.with_faults(*self.scenario.faults, fault),
+                                lambda: None)
+            if new is None:
                 return
             self._set_scenario(new)
             self._fault_index = len(self.scenario.faults) - 1
