@@ -579,6 +579,9 @@ class Session:
             self.scenario = s = scenario
             self._syncing = True
             try:
+                self._show_preset(s)
+                if s.source == "rinex":
+                    self.rec_obs.value, self.rec_nav.value = str(s.obs), str(s.nav)
                 self.algorithm.value = s.algorithm
                 for name, ctl in self.controls.items():
                     ctl.show(getattr(s, name))
@@ -596,20 +599,21 @@ class Session:
                 ctl.reset_range()
         self.request_recompute()
 
+    def _show_preset(self, s: Scenario) -> None:
+        """The Preset dropdown names the scenario now open: a scenario opened from
+        elsewhere (a lesson, a recording) becomes a preset of this session."""
+        self.presets.setdefault(s.name, s)
+        if tuple(self.preset.options) != tuple(self.presets):
+            self.preset.options = list(self.presets)
+        self.preset.value = self._preset_name = s.name
+
     # -- recordings ---------------------------------------------------------------------
     def open_recording(self, obs: str, nav: str) -> None:
         """Open a RINEX recording (paths on the server) and offer it as a preset."""
         from raimcore.scenario import recording_scenario
 
         scenario = recording_scenario(obs, nav, algorithm=self.scenario.algorithm)
-        self.presets[scenario.name] = scenario
-        self._syncing = True
-        try:
-            self.preset.options = list(self.presets)
-            self.preset.value = self._preset_name = scenario.name
-            self.rec_obs.value, self.rec_nav.value = str(obs), str(nav)
-        finally:
-            self._syncing = False
+        self.presets[scenario.name] = scenario  # re-opened: the file's new content
         self.open_scenario(scenario)
 
     def _on_open_recording(self) -> None:

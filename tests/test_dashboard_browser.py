@@ -262,3 +262,119 @@ def test_time_slider_moves_the_cursor_without_resending_figures(dash, browser):
         assert resized["x0"] == 5.0
     finally:
         _close(dash, page, session)
+
+
+# -- lessons walked in the browser -----------------------------------------------------
+
+def _row(page, handle):
+    """The on-page row (label and input) of the viser control ``handle``."""
+    return page.locator(f'label[for="{handle._impl.uuid}"]').locator("xpath=../../..")
+
+
+def _reveal(page, handle, folder: str) -> None:
+    """Open the control panel folder ``folder`` when ``handle``'s row is hidden in it."""
+    label = page.locator(f'label[for="{handle._impl.uuid}"]')
+    if label.count() and label.first.is_visible():
+        return
+    page.get_by_text(folder, exact=True).first.click()
+    label.first.wait_for(state="visible", timeout=10_000)
+
+
+def _enter(page, handle, value, folder: str) -> None:
+    """Type or pick ``value`` in the control ``handle`` as a student would."""
+    _reveal(page, handle, folder)
+    row = _row(page, handle)
+    if isinstance(handle, _viser_handles().GuiDropdownHandle):
+        row.locator("input").first.click()
+        page.get_by_role("option", name=str(value), exact=True).click()
+        return
+    box = row.locator("input").last  # a slider's number box, a number or a text box
+    box.click()
+    box.press("Control+a")
+    box.press_sequentially(f"{value:g}" if isinstance(value, float) else str(value))
+    box.press("Enter")
+    box.blur()
+
+
+def _viser_handles():
+    import viser._gui_handles as handles
+
+    return handles
+
+
+def _student_edits(session, overrides: dict) -> list[tuple[object, object, str]]:
+    """The control entries that turn the set-up lesson into its ``overrides``:
+    ``(handle, value, folder)``, in the order a student makes them."""
+    edits = []
+    for name, value in overrides.items():
+        if name == "faults":
+            (want,) = value  # the lessons' answers edit the one fault they set up
+            have = session.scenario.faults[0]
+            if want["sat"] != have.sat:
+                edits.append((session.fault_sat, want["sat"], "Faults"))
+            for field, v in want.items():
+                if field != "sat" and getattr(have, field) != v:
+                    edits.append((session.fault_controls[field].handle, v, "Faults"))
+        elif name == "algorithm":
+            edits.append((session.algorithm, value, "Scenario"))
+        elif name in session.controls:
+            edits.append((session.controls[name].handle, value, "Scenario"))
+        else:
+            edits.append((session.option_controls[name].handle, value, "Algorithm options"))
+    return edits
+
+
+def _answer(page, session) -> str:
+    """Press "Check my answer"; the answer as the page shows it."""
+    tab = session.lessons_tab
+    old = tab.answer_md.content
+    page.get_by_role("button", name="Check my answer").click()
+    t_end = time.monotonic() + 120
+    while tab.answer_md.content == old and time.monotonic() < t_end:
+        time.sleep(0.05)
+    shown = tab.answer_md.content.split(" ", 1)[0]  # the mark
+    page.get_by_text(shown).first.wait_for(timeout=30_000)
+    return tab.answer_md.content
+
+
+def test_every_lesson_walks_to_its_check_in_the_browser(dash, browser):
+    """Each built-in lesson, as a student meets it: pick it in the Lessons tab, Set up,
+    Check (not answered yet), make the answer's edits with the controls, Check again."""
+    from app.lessons import load_lessons
+
+    lessons = [x for x in load_lessons() if x.available]
+    assert len(lessons) >= 10
+    page, session = _open(dash, browser, 1600, 1000)
+    try:
+        page.get_by_role("tab", name="Lessons").click()
+        tab = session.lessons_tab
+        for lesson, label in zip(lessons, [x for x in tab.labels
+                                           if tab._by_label[x].available], strict=True):
+            _enter(page, tab.pick, label, "Lessons")
+            page.get_by_role("button", name="Set up").click()
+            t_end = time.monotonic() + 120
+            while (session.result is None or session.result.scenario.name
+                   != lesson.scenario_name) and time.monotonic() < t_end:
+                time.sleep(0.1)
+            assert session.scheduler.wait_idle(120), lesson.id
+            assert session.preset.value == lesson.scenario_name
+            first = _answer(page, session)
+            assert first.startswith("❌"), (lesson.id, first)
+
+            (answer,) = lesson.test_pass[:1]
+            for handle, value, folder in _student_edits(session, answer):
+                _enter(page, handle, value, folder)
+                page.wait_for_timeout(300)
+            want = lesson.scenario(**answer)
+            t_end = time.monotonic() + 180
+            while session.scenario != want and time.monotonic() < t_end:
+                time.sleep(0.1)
+            assert session.scenario == want, (
+                lesson.id, [(h.label, v, h.value) for h, v, _ in
+                            _student_edits(session, answer)], session.scenario, want)
+            assert session.scheduler.wait_idle(180), lesson.id
+            final = _answer(page, session)
+            assert final.startswith("✅"), (lesson.id, final)
+        page.screenshot(path=str(SHOTS / "lesson.png"))
+    finally:
+        _close(dash, page, session)

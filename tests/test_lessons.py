@@ -421,11 +421,20 @@ def test_lessons_tab_on_the_real_dashboard_session():
         assert tab.set_up()
         ok, msg = tab.check()  # waits for the recompute the set-up started
         assert session.result.scenario.name == "lesson-06-geometry-dop"
+        assert session.preset.value == "lesson-06-geometry-dop"  # the dropdown follows
         assert not ok and "unavailable epochs 0" in msg
         session.mask.value = 14.0  # the student moves the elevation-mask control
         ok, msg = tab.check()
         assert ok, msg
         assert session.result.scenario.mask_deg == 14.0
+        rec = tab.labels[TOPIC_IDS.index("11-real-recording")]
+        lesson = tab._by_label[rec]
+        if lesson.available:  # the recording lesson fills the Recording fields
+            tab.pick.value = rec
+            assert tab.set_up()
+            obs, nav = lesson.required_files()
+            assert (session.rec_obs.value, session.rec_nav.value) == (str(obs), str(nav))
+            assert session.preset.value == "lesson-11-real-recording"
     finally:
         session.close()
         dash.stop()

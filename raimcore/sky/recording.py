@@ -59,9 +59,11 @@ def recording_keys(obs) -> dict:
     """Scenario keys that fit the recording ``obs`` (see
     :func:`raimcore.scenario.recording_scenario`): its name, GPS and BDS (those present),
     the whole recording at its own interval, and the real-data defaults."""
+    from ..scenario import SYSTEMS  # the systems a scenario takes
+
     o = _read_obs(_stamp(obs, "obs"))
-    systems = [s for s, letter in SYSTEM_LETTER.items()
-               if any(n[0] == letter for n in o.sat_names)] or ["GPS"]
+    systems = [s for s, letter in SYSTEM_LETTER.items() if s in SYSTEMS
+               and any(n[0] == letter for n in o.sat_names)] or ["GPS"]
     t = o.t_gps_s - o.t_gps_s[0] if len(o.t_gps_s) else np.zeros(1)
     step = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
     return {"name": Path(obs).name.split(".")[0],
