@@ -1,8 +1,13 @@
-"""Small self-contained RINEX 2.11 / 3.0x files written by the tests themselves.
+"""Small self-contained RINEX 2.11 / 3.0x / 4.00 files written by the tests themselves.
 
 The navigation values are real broadcast records (GPS PRN 6 of 2021-04-28 from the IGS
-``brdc1180.21n``; BeiDou C05 (GEO) and C21 (MEO) of 2020-06-24 from ESBC's 3.05 mixed file),
-so positions computed from them can be checked against their known orbits.
+``brdc1180.21n``; BeiDou C05 (GEO) and C23 (MEO), Galileo E01 (its F/NAV and I/NAV records
+of the same toc) and GLONASS R01 of 2020-06-24/25 from ESBC's 3.05 mixed file,
+``../shared/data/ESBC00DNK_R_20201770000_01D_MN.rnx``), so positions computed from them can
+be checked against their known orbits. The RINEX 4 file is written by hand from the RINEX
+4.00 format (IGS/RTCM 2021) and the layout of a DLR ``BRD400DLR`` merged file: the same
+records as ``> EPH`` records, plus ``> STO``, ``> EOP``, ``> ION`` records and message types
+the reader skips.
 """
 
 from __future__ import annotations
@@ -165,5 +170,148 @@ def nav_v3(path: Path, *, version: str = "3.05", truncate: bool = False,
         lines[5 + 8] = "X" + lines[5 + 8][1:]
     if truncate:
         lines = lines[:-2]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+# -- real records of the ESBC 3.05 mixed file (see the module docstring) --------------------
+# ``None`` is a blank field, as in the file.
+
+GPS6_DATE = "2021 04 28 17 59 44"
+C23 = [-8.494175272062e-04, 4.416911281169e-12, 0.0, 1.0, -14.515625, 4.083384375064e-09,
+       -2.567442602347, -6.849877536297e-07, 3.092981642112e-04, 7.189810276031e-06,
+       5.282613891602e+03, 3.456e+05, -4.889443516731e-08, -2.225624712603e-01,
+       -5.355104804039e-08, 9.525541865053e-01, 2.141875e+02, -2.130393007123,
+       -6.825998615956e-09, -5.525230148013e-10, 0.0, 755.0, None, 2.0, 0.0, 2.53e-08,
+       2.53e-08, 3.45618e+05, 1.0]
+C23_DATE = "2020 06 25 00 00 00"
+# E01 at 2020-06-24 23:30:00: the F/NAV record (data sources 258 = F/NAV E5a, clock for
+# E5a,E1) and the I/NAV record (517 = I/NAV E1-B + E5b, clock for E5b,E1) of the same toc.
+_E01_COMMON = [61.0, 18.65625, 2.65653922695e-09, -1.832282909549, 8.568167686462e-07,
+               9.650341235101e-05, 1.049041748047e-05, 5.44060203743e+03, 3.438e+05,
+               1.862645149231e-09, 2.123282284601e-01, -1.4528632164e-07, 9.82829647737e-01,
+               1.29875e+02, -2.778709093141, -5.216288707934e-09, -6.996720012901e-10]
+E01_FNAV = ([-8.846927667037e-04, -7.972289495228e-12, 0.0] + _E01_COMMON
+            + [258.0, 2111.0, None, 3.12, 0.0, -1.862645149231e-09, 0.0, 3.4454e+05])
+E01_INAV = ([-8.846933487803e-04, -7.972289495228e-12, 0.0] + _E01_COMMON
+            + [517.0, 2111.0, None, 3.12, 0.0, -1.862645149231e-09, -2.095475792885e-09,
+               3.44465e+05])
+E01_DATE = "2020 06 24 23 30 00"
+# R01 at 2020-06-25 00:15:00 UTC: -tauN, +gammaN, tk; X, Xdot, Xacc, health; Y, ...; Z,
+# ..., age (km, km/s, km/s^2); 3.05 line 5: status flags (blank), L1/L2 delay difference
+# (.999999999999e+09: unknown), URAI 15, health flags (blank).
+R01 = [6.356183439493e-05, 0.0, 3.456e+05, 1.682726318359e+04, 1.726848602295, 0.0, 0.0,
+       5.647285644531e+03, 1.820017814636, 9.313225746155e-10, 1.0, 1.833408203125e+04,
+       -2.144553184509, -2.793967723846e-09, 0.0, None, 9.99999999999e+08, 15.0, None]
+R01_DATE = "2020 06 25 00 15 00"
+
+#: (satellite, date, values, RINEX 4 message type) by system, in file order.
+REAL_RECORDS = {
+    "G": [("G06", GPS6_DATE, GPS6, "LNAV")],
+    "C": [("C05", C05_DATE, C05, "D2"), ("C23", C23_DATE, C23, "D1")],
+    "E": [("E01", E01_DATE, E01_FNAV, "FNAV"), ("E01", E01_DATE, E01_INAV, "INAV")],
+    "R": [("R01", R01_DATE, R01, "FDMA")],
+}
+_NAMES = {"G": "GPS", "C": "BDS", "E": "GALILEO", "R": "GLONASS"}
+_IONO = {
+    "G": [_hdr("GPSA   4.6566e-09  1.4901e-08 -5.9605e-08 -1.1921E-07", "IONOSPHERIC CORR"),
+          _hdr("GPSB   8.1920e+04  9.8304e+04 -6.5536e+04 -5.2429E+05", "IONOSPHERIC CORR")],
+    "C": [_hdr("BDSA   1.0245e-08  2.9802e-08 -2.9802e-07  4.7684E-07", "IONOSPHERIC CORR"),
+          _hdr("BDSB   1.1469e+05  1.6384e+05 -1.3107e+05 -4.5875E+05", "IONOSPHERIC CORR")],
+}
+
+
+def nav_v3_system(path: Path, systems: str = "GCER", *, version: str = "3.05",
+                  blank_spare: bool = False, leap: str | None = "    18") -> Path:
+    """The real records of ``systems`` in one RINEX 3 file: one system as IGS publishes
+    them per system (``_GN``, ``_CN``, ``_EN``, ``_RN``), several as a mixed file.
+    ``blank_spare``: the BeiDou spare field (BROADCAST ORBIT - 5, 2nd) left blank, as some
+    3.05 writers do. ``leap``: the ``LEAP SECONDS`` header field (None: no such line)."""
+    kind = (f"{systems}: {_NAMES[systems]}" if len(systems) == 1 else "M: MIXED")
+    lines = [_hdr(f"{version:>9}           N: GNSS NAV DATA    {kind}", "RINEX VERSION / TYPE"),
+             _hdr("snippet", "PGM / RUN BY / DATE")]
+    for letter in systems:
+        lines += _IONO.get(letter, [])
+    if leap is not None:
+        lines.append(_hdr(leap, "LEAP SECONDS"))
+    lines.append(_hdr("", "END OF HEADER"))
+    for letter in systems:
+        for sat, date, values, _ in REAL_RECORDS[letter]:
+            if blank_spare and letter == "C":
+                values = values[:20] + [None] + values[21:]
+            lines += _v3_record(sat, date, values)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _v4_other(head: str, first: str, n_more: int) -> list[str]:
+    """A RINEX 4 record the reader skips: its ``>`` line, a first line, ``n_more`` lines."""
+    return [head, first] + ["    " + " 0.000000000000e+00" * 4] * n_more
+
+
+def nav_v4(path: Path, *, truncate: bool = False, version: str = "4.00") -> Path:
+    """RINEX 4.00: the real records as ``> EPH`` records, between a time offset (STO), an
+    Earth orientation (EOP), Klobuchar (GPS LNAV, BDS D1D2), NeQuick-G and BDGIM ION
+    records, a GPS CNAV and a BDS CNV1 record (message types not read) and a QZSS LNAV
+    record (system not read by default). ``truncate``: the GLONASS record lacks its
+    5th line."""
+    lines = [_hdr(f"{version:>9}           NAVIGATION DATA     M", "RINEX VERSION / TYPE"),
+             _hdr("snippet             RAIM Studio         20240101 000000 UTC",
+                  "PGM / RUN BY / DATE"),
+             _hdr("    18    18  2185     7", "LEAP SECONDS"),
+             _hdr("", "END OF HEADER"),
+             "> STO G06 LNAV",
+             "    2020 06 25 00 00 00 GPUT     UTC(USNO)",
+             "     3.456000000000e+05 9.313225746155e-10 2.664535259100e-15 0.000000000000e+00",
+             "> EOP G06 CNVX",
+             "    2020 06 25 00 00 00 3.496837615967e-02-1.758575439453e-03 0.000000000000e+00",
+             "                        2.492733001709e-01 1.537799835205e-03 0.000000000000e+00",
+             "    -8.632800000000e+04-2.960562705994e-03-3.077089786530e-04 0.000000000000e+00",
+             "> ION G06 LNAV",
+             "    2020 06 24 23 59 44 4.656612873077e-09 1.490116119385e-08-5.960464477539e-08",
+             "    -1.192092895508e-07 8.192000000000e+04 9.830400000000e+04-6.553600000000e+04",
+             "    -5.242880000000e+05",
+             "> ION C05 D1D2",
+             "    2020 06 25 00 00 00 1.024454832077e-08 2.980232238770e-08-2.980232238770e-07",
+             "     4.768371582031e-07 1.146880000000e+05 1.638400000000e+05-1.310720000000e+05",
+             "    -4.587520000000e+05",
+             "> ION E01 IFNV",
+             "    2020 06 24 23 30 00 2.825000000000e+01 7.812500000000e-03 1.007080078125e-02",
+             "     0.000000000000e+00",
+             *_v4_other("> ION C23 CNVX", "    2020 06 25 00 00 00" + " 1.000000000000e+00"
+                        * 3, 2)]  # BDGIM, not Klobuchar: skipped
+    for letter in "GCER":
+        for sat, date, values, msg in REAL_RECORDS[letter]:
+            rec = _v3_record(sat, date, values)
+            if truncate and letter == "R":
+                rec = rec[:-1]  # a GLONASS record one line short
+            lines += [f"> EPH {sat} {msg}", *rec]
+        if letter == "G":
+            lines += _v4_other("> EPH G06 CNAV", _v3_record("G06", GPS6_DATE, GPS6)[0], 8)
+        if letter == "C":
+            lines += _v4_other("> EPH C23 CNV1", _v3_record("C23", C23_DATE, C23)[0], 9)
+    lines += _v4_other("> EPH J01 LNAV", "J01 2020 06 25 11 00 00-2.819551154971e-04"
+                       " 5.684341886081e-12 0.000000000000e+00", 7)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _d19(v) -> str:
+    """A RINEX 2 number (D19.12, FORTRAN ``D`` exponent); None is a blank field."""
+    return " " * 19 if v is None else f"{v: .12e}".replace("e", "D")
+
+
+def nav_v2_glonass(path: Path, *, leap: str | None = "    18") -> Path:
+    """RINEX 2.11 GLONASS navigation (``.yyg``, type 'G'): R01 above in the 4-line layout
+    (PRN, yy mm dd hh mm ss.s, 3 numbers; then 3 lines of 4), tocs in UTC."""
+    v = R01[:15]
+    lines = [_hdr("     2.11           G: GLONASS NAV DATA", "RINEX VERSION / TYPE"),
+             _hdr("snippet", "PGM / RUN BY / DATE"),
+             _hdr("  2020     6    25    -0.111758708954D-07", "CORR TO SYSTEM TIME")]
+    if leap is not None:
+        lines.append(_hdr(leap, "LEAP SECONDS"))
+    lines += [_hdr("", "END OF HEADER"),
+              " 1 20  6 25  0 15  0.0" + "".join(_d19(x) for x in v[:3])]
+    lines += ["   " + "".join(_d19(x) for x in v[k:k + 4]) for k in (3, 7, 11)]
     path.write_text("\n".join(lines) + "\n")
     return path

@@ -80,8 +80,9 @@ def test_obs_header_errors(tmp_path):
 
 @pytest.mark.parametrize("version", ["3.04", "3.05"])
 def test_nav_v3_skips_other_systems_by_line_count(tmp_path, version):
-    n = read_nav(snip.nav_v3(tmp_path / "n.rnx", version=version))
+    n = read_nav(snip.nav_v3(tmp_path / "n.rnx", version=version), systems="GC")
     assert n.skipped == {"R": 1, "E": 1, "S": 1}
+    assert sorted(n.records) == ["C", "G"]
     assert list(n.records["G"][0]) == ["G06"] and list(n.records["C"][0]) == ["C05"]
     np.testing.assert_allclose(n.records["G"][2][0, :3], snip.GPS6[:3])
     # The BDS toc is in BDT: converted to GPST (+14 s).
