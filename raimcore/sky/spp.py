@@ -2,11 +2,23 @@
 
 :func:`correct` turns a RINEX observation + navigation pair into satellite positions at
 transmission (rotated into the Earth-fixed frame at reception: Sagnac) and pseudoranges
-corrected for the satellite clock (incl. relativistic term and TGD), the Klobuchar
+corrected for the satellite clock (incl. relativistic term and TGD/BGD), the Klobuchar
 ionosphere and a standard troposphere. :func:`solve` is a batched weighted least squares
 over all epochs (``raimcore.lsq.wls``), one receiver clock per system, weights from
 :func:`elevation_sigma`. Atmospheric corrections and elevations are computed at a
 first-pass solution, then refined once, so no prior position is needed.
+
+Systems: GPS, BeiDou, Galileo and GLONASS (``ALL_SYSTEM_LETTER``). One receiver clock per
+system absorbs the system time offsets (GST - GPST, GLONASS time - GPST beyond the leap
+seconds, BDT) and, for GLONASS, the mean of the receiver's inter-channel biases; what is
+left of those biases (FDMA channels differ by up to metres in some receivers) stays in the
+GLONASS pseudoranges.
+
+Ionosphere: the broadcast GPS Klobuchar model (BeiDou's own coefficients for BeiDou when
+the file has them) scaled by ``(f_ref / f)^2`` to each satellite's carrier ``f``:
+Galileo E1 is on L1 (scale 1; the Galileo NeQuick-G coefficients are not used), GLONASS
+L1 channel ``k`` is at 1602 + 0.5625 k MHz, with ``k`` from the satellite's navigation
+record (the observation header's ``GLONASS SLOT / FRQ #`` is not read).
 """
 
 from __future__ import annotations
@@ -16,20 +28,69 @@ from datetime import timedelta
 
 import numpy as np
 
-from ..constants import C_MPS, OMEGA_E_RADPS
+from ..constants import (
+    C_MPS,
+    DF_GLO_G1_HZ,
+    DF_GLO_G2_HZ,
+    F_B1I_HZ,
+    F_B3I_HZ,
+    F_E5_HZ,
+    F_E5B_HZ,
+    F_E6_HZ,
+    F_GLO_G1_HZ,
+    F_GLO_G2_HZ,
+    F_GLO_G3_HZ,
+    F_L1_HZ,
+    F_L2_HZ,
+    F_L5_HZ,
+    OMEGA_E_RADPS,
+)
 from ..geometry import az_el, ecef_to_geodetic
 from ..lsq import LsqResult, wls
-from .ephemeris import from_nav, sat_pos_clock
+from .ephemeris import ephemeris_notes, from_nav, sat_pos_clock
 from .rinex import _GPS_EPOCH, NavFile, ObsFile
 
 __all__ = ["Corrected", "correct", "solve", "spp", "klobuchar", "troposphere",
-           "elevation_sigma", "SYSTEM_LETTER", "DEFAULT_SIGNALS"]
+           "elevation_sigma", "carrier_hz", "ALL_SYSTEM_LETTER", "SYSTEM_LETTER",
+           "DEFAULT_SIGNALS"]
 
-SYSTEM_LETTER = {"GPS": "G", "BDS": "C"}
-#: Preferred code signals per system, first found wins (RINEX 3 and RINEX 2 names).
-DEFAULT_SIGNALS = {"GPS": ("C1C", "C1"), "BDS": ("C2I", "C2X", "C1I")}
-_F_L1_HZ = 1575.42e6  # IS-GPS-200 3.3.1.1
-_F_B1I_HZ = 1561.098e6  # BDS-SIS-ICD-B1I 3.0, 3.2
+#: Every system :func:`correct` positions with, and the first letter of its satellites.
+ALL_SYSTEM_LETTER = {"GPS": "G", "BDS": "C", "GAL": "E", "GLO": "R"}
+#: The systems a recording scenario offers (``recording.recording_keys``): those the
+#: scenario schema takes today (``scenario.SYSTEMS``). Galileo and GLONASS join when the
+#: schema takes them; until then they are reached through :func:`correct` / :func:`spp`.
+SYSTEM_LETTER = {k: ALL_SYSTEM_LETTER[k] for k in ("GPS", "BDS")}
+#: Preferred code signals per system, first found wins (RINEX 3 and RINEX 2 names): GPS
+#: L1 C/A, BeiDou B1I (``C1I`` is its RINEX 3.02 name), Galileo E1 (pilot C or B+C; the
+#: clock and BGD of the I/NAV record), GLONASS L1 C/A.
+DEFAULT_SIGNALS = {"GPS": ("C1C", "C1"), "BDS": ("C2I", "C2X", "C1I"),
+                   "GAL": ("C1C", "C1X", "C1"), "GLO": ("C1C", "C1")}
+# Carrier of each RINEX frequency band (the code's 2nd character), RINEX 3.05 table 4.
+_BAND_HZ = {"G": {"1": F_L1_HZ, "2": F_L2_HZ, "5": F_L5_HZ},
+            "E": {"1": F_L1_HZ, "5": F_L5_HZ, "7": F_E5B_HZ, "8": F_E5_HZ, "6": F_E6_HZ},
+            "C": {"2": F_B1I_HZ, "1": F_L1_HZ, "5": F_L5_HZ, "7": F_E5B_HZ, "8": F_E5_HZ,
+                  "6": F_B3I_HZ},
+            "R": {"3": F_GLO_G3_HZ, "4": 1600.995e6, "6": 1248.06e6}}  # G1a, G2a: RINEX 3.05
+
+
+def carrier_hz(letter: str, code: str, fcn=0) -> np.ndarray:
+    """Carrier frequency (Hz) of observation ``code`` (RINEX 3 "C1C" or RINEX 2 "C1") of
+    system ``letter``; ``fcn`` is the GLONASS FDMA channel k (array or int) for bands 1
+    and 2 (GLONASS ICD ed. 5.1, 3.3.1.4). BeiDou band 1 is B1I for the RINEX 3.02 codes
+    ``C1I``/``C1Q`` and B1C otherwise. NaN for an unknown band.
+
+    >>> float(carrier_hz("R", "C1C", -7)) / 1e6
+    1598.0625
+    """
+    band = code[1:2]
+    if letter == "R" and band in ("1", "2"):
+        base, step = (F_GLO_G1_HZ, DF_GLO_G1_HZ) if band == "1" else (F_GLO_G2_HZ,
+                                                                     DF_GLO_G2_HZ)
+        return base + step * np.asarray(fcn, dtype=float)
+    if letter == "C" and code[:3] in ("C1I", "C1Q"):
+        band = "2"
+    f = _BAND_HZ.get(letter, {}).get(band, np.nan)
+    return np.full(np.shape(fcn), f)
 
 
 def klobuchar(lat_rad, lon_rad, az_rad, el_rad, t_gps_s, alpha, beta) -> np.ndarray:
@@ -93,7 +154,9 @@ class Corrected:
     tracked : (E, S) observed; usable : (E, S) with a healthy ephemeris in its validity.
     iono_m, tropo_m : (E, S) model delays at the current receiver estimate.
     rx_ecef_m : (E, 3) the position at which the delays and elevations were computed.
-    notes : human-readable remarks (satellites without ephemeris, ...).
+    freq_hz : (E, S) carrier frequency of the signal used (GLONASS: its FDMA channel).
+    ura_m : (E, S) broadcast URA / SISA of the record used (m; NaN where not broadcast).
+    notes : human-readable remarks (satellites without ephemeris, records not used, ...).
     """
 
     t_gps_s: np.ndarray
@@ -109,6 +172,8 @@ class Corrected:
     iono_m: np.ndarray
     tropo_m: np.ndarray
     rx_ecef_m: np.ndarray
+    freq_hz: np.ndarray
+    ura_m: np.ndarray
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -119,7 +184,7 @@ class Corrected:
 
 
 def _pick_signal(obs: ObsFile, system: str, signals) -> str:
-    letter = SYSTEM_LETTER[system]
+    letter = ALL_SYSTEM_LETTER[system]
     have = obs.obs_types.get(letter, ())
     prefs = tuple(signals) if signals else DEFAULT_SIGNALS[system]
     for code in prefs:
@@ -136,12 +201,23 @@ def correct(obs: ObsFile, nav: NavFile, systems=("GPS", "BDS"), signals=(),
 
     Parameters
     ----------
-    obs, nav : the recording. systems : "GPS" and/or "BDS" (systems absent from the file
-        are left out with a note). signals : preferred code types (first found per system
-        wins); empty = ``DEFAULT_SIGNALS``.
+    obs, nav : the recording. systems : names of ``ALL_SYSTEM_LETTER`` ("GPS", "BDS", "GAL",
+        "GLO"; systems absent from either file are left out with a note; ``nav`` must have
+        been read with their letters, e.g. ``read_nav(path, systems="GCER")``).
+        signals : preferred code types (first found per system wins); empty =
+        ``DEFAULT_SIGNALS``.
     rx_ecef_m : (3,) or (E, 3) receiver position for the delays; None = solve for it
         (first pass without atmosphere, then one refinement).
+
+    Raises
+    ------
+    ValueError for an unknown system, a signal not in the file or of an unknown band, or
+    no satellite with both pseudoranges and a usable ephemeris.
     """
+    unknown = [x for x in systems if x not in ALL_SYSTEM_LETTER]
+    if unknown:
+        raise ValueError(f"systems must be among {', '.join(ALL_SYSTEM_LETTER)}, got "
+                         f"{', '.join(map(str, unknown))}")
     eph = from_nav(nav)
     notes: list[str] = []
     names: list[str] = []
@@ -150,12 +226,17 @@ def correct(obs: ObsFile, nav: NavFile, systems=("GPS", "BDS"), signals=(),
     chosen: dict[str, str] = {}
     pr_cols = []
     for system in systems:
-        letter = SYSTEM_LETTER[system]
+        letter = ALL_SYSTEM_LETTER[system]
         sats = [n for n in obs.sat_names if n[0] == letter]
         if not sats:
             notes.append(f"{system}: no satellites in {obs.path}")
             continue
+        if letter not in nav.records:
+            notes.append(f"{system}: no navigation records in {nav.path}; left out")
+            continue
         code = _pick_signal(obs, system, signals)
+        if np.isnan(carrier_hz(letter, code)):
+            raise ValueError(f"signals: no carrier frequency known for {system} {code}")
         chosen[system] = code
         pr_all = obs.pseudorange(letter, code)
         col = {n: k for k, n in enumerate(obs.sat_names)}
@@ -174,6 +255,11 @@ def correct(obs: ObsFile, nav: NavFile, systems=("GPS", "BDS"), signals=(),
     if not names:
         raise ValueError(f"{obs.path}: no satellite of {', '.join(systems)} with both "
                          f"pseudoranges and an ephemeris")
+    # Records not used (unhealthy, incomplete, F/NAV): the notes on the satellites this
+    # recording observes and the system-wide ones ("GAL: ...").
+    about = set(obs.sat_names) | set(used_systems)
+    letters_used = "".join(ALL_SYSTEM_LETTER[x] for x in used_systems)
+    notes += [n for n in ephemeris_notes(nav, letters_used) if n.split(":")[0] in about]
     t = obs.t_gps_s
     pr = np.stack(pr_cols, axis=1)
     tracked = np.isfinite(pr)
@@ -198,9 +284,14 @@ def correct(obs: ObsFile, nav: NavFile, systems=("GPS", "BDS"), signals=(),
     pos = np.where(np.isfinite(pos), pos, 0.0)
     e_n, s_n = pr.shape
     zero = np.zeros((e_n, s_n))
+    letters = np.array([n[0] for n in names])
+    freq = np.zeros((e_n, s_n))
+    for system in used_systems:
+        cols = letters == ALL_SYSTEM_LETTER[system]
+        freq[:, cols] = carrier_hz(ALL_SYSTEM_LETTER[system], chosen[system], e_sel.fcn[:, cols])
     corr = Corrected(t, tuple(names), np.array(sys_of, dtype=int), tuple(used_systems), chosen,
                      pos, np.where(tracked, pr, np.nan), C_MPS * clk, tracked, usable, zero,
-                     zero, np.full((e_n, 3), np.nan), notes)
+                     zero, np.full((e_n, 3), np.nan), freq, e_sel.ura_m, notes)
     if rx_ecef_m is None:
         first = solve(corr, mask_deg=-90.0)
         rx = _fill(first.pos_ecef_m, obs.approx_pos_ecef_m)
@@ -239,7 +330,9 @@ def _fill(pos, fallback) -> np.ndarray:
 
 
 def with_atmosphere(corr: Corrected, nav: NavFile, rx_ecef_m) -> Corrected:
-    """``corr`` with the Klobuchar and tropospheric delays recomputed at ``rx_ecef_m``."""
+    """``corr`` with the Klobuchar and tropospheric delays recomputed at ``rx_ecef_m``:
+    each system's delay is scaled by ``(f_ref / f)^2`` from the coefficients' reference
+    carrier (GPS L1, or BeiDou B1I for BeiDou's own) to the satellite's ``freq_hz``."""
     rx = np.asarray(rx_ecef_m, dtype=float)
     lat, lon, h = ecef_to_geodetic(rx)
     az, el = az_el(corr.pos_sv_ecef_m, rx)
@@ -252,12 +345,13 @@ def with_atmosphere(corr: Corrected, nav: NavFile, rx_ecef_m) -> Corrected:
             # BDS broadcasts its own Klobuchar coefficients for B1I (BDS ICD 5.2.4.7);
             # the GPS algorithm is applied to them (the BDS variant differs in the pierce
             # point geometry only).
-            a_s, b_s, scale = nav.iono["BDSA"], nav.iono["BDSB"], 1.0
+            a_s, b_s, f_ref = nav.iono["BDSA"], nav.iono["BDSB"], F_B1I_HZ
         else:
-            # GPS coefficients give the L1 delay; scale by (f_L1 / f)^2 for B1I.
-            a_s, b_s = alpha, beta
-            scale = (_F_L1_HZ / _F_B1I_HZ) ** 2 if system == "BDS" else 1.0
+            # GPS coefficients give the L1 delay (Galileo E1 is on L1; GLONASS L1 FDMA
+            # and BeiDou B1I are scaled).
+            a_s, b_s, f_ref = alpha, beta, F_L1_HZ
         if np.any(a_s):
+            scale = (f_ref / corr.freq_hz[:, cols]) ** 2
             iono[:, cols] = scale * klobuchar(lat[:, None], lon[:, None], az[:, cols],
                                               el[:, cols], corr.t_gps_s[:, None], a_s, b_s)
     tropo = troposphere(lat[:, None], h[:, None], el)
