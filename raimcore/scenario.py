@@ -148,6 +148,14 @@ def _parse_truth(name, value):
     return xyz
 
 
+def _parse_times(name, value):
+    if isinstance(value, str) or not isinstance(value, list | tuple | np.ndarray):
+        raise SchemaError(f"{name} must be a list of times in seconds, e.g. [120, 480], got "
+                          f"{value!r}"[:200])
+    return tuple(sorted(coerce_float(f"{name}[{i}]", v, 0.0, 1e9, unit="s")
+                        for i, v in enumerate(value)))
+
+
 def _parse_algorithm(name, value):
     names = algorithms.names()
     if not isinstance(value, str) or value not in names:
@@ -248,6 +256,10 @@ class Scenario:
                           group="receiver")
     clock_drift_mps: float = key(0.0, "receiver clock drift", unit="m/s", lo=-1.0e5,
                                  hi=1.0e5, group="receiver")
+    clock_jumps_s: tuple[float, ...] = key(
+        (), "times of 1 ms receiver clock jumps (299,792 m on every pseudorange; against "
+        "the drift, as a clock-steering receiver)", unit="s", kind="custom",
+        parse=_parse_times, allowed_text="list of times in [0, 1e9]", group="receiver")
     mask_deg: float = key(5.0, "elevation mask", unit="deg", lo=-10.0, hi=89.0,
                           ui_lo=0.0, ui_hi=40.0, ui_step=1.0, group="measurements")
     sigma_m: float = key(33.0, "pseudorange noise 1-sigma (a recording: assumed, at the "

@@ -2,8 +2,16 @@
 
 The baseline of seed 002 (spec section 3, "Baseline"): the same state and process model as
 the particle filters (:class:`raimcore.algorithms.pf.ProcessModel`: ECEF position, optional
-velocity, one clock per system), the measurement noise taken as Gaussian with the noise model's
-standard deviation. Batched over a leading axis of independent realisations ``R``.
+velocity, one clock offset per system, optional shared clock drift), the measurement noise
+taken as Gaussian with the noise model's standard deviation. Batched over a leading axis of
+independent realisations ``R``.
+
+Receiver clock: the drift starts from the clock change between the first two epochs
+(:func:`~raimcore.algorithms.pf.initial_drift`); a clock jump (the common-mode innovation
+of a system above :data:`~raimcore.algorithms.pf.CLOCK_JUMP_M`,
+:func:`~raimcore.algorithms.pf.clock_jump`) re-initialises that system's offset (the
+prediction moved by the jump, its variance increased by the jump estimate's) before the
+innovations are tested, so the test sees only the differential part.
 
 Test: the normalised innovation squared ``NIS = nu^T S^-1 nu`` with ``S = H P H^T + R`` is
 chi-square with ``m`` degrees of freedom without a fault (Gaussian noise); alarm when it
@@ -19,7 +27,15 @@ import numpy as np
 from scipy import stats
 
 from ..lsq import clock_columns, wls
-from .pf import ProcessModel, availability, cov_enu_to_ecef
+from .pf import (
+    CLOCK_JUMP_M,
+    ProcessModel,
+    availability,
+    clock_jump,
+    cov_enu_to_ecef,
+    initial_drift,
+    jump_variance,
+)
 
 __all__ = ["EkfRun", "run_ekf"]
 
@@ -38,6 +54,8 @@ class EkfRun:
     worst : (R, E) int, the satellite with the largest normalised innovation (-1 if none).
     excluded : (R, E, S) bool, left out of the update (``exclude=True`` only).
     available : (E,) bool, ``m >= n + 1`` and the filter started.
+    clock_jump_m : (R, E, q) receiver clock jumps detected and absorbed (m, per system;
+        0 where none).
     """
 
     estimate: np.ndarray
@@ -48,24 +66,28 @@ class EkfRun:
     worst: np.ndarray
     excluded: np.ndarray
     available: np.ndarray
+    clock_jump_m: np.ndarray
 
 
 def _transition(model: ProcessModel, dt_s: float):
-    """State transition F (D, D) and process covariance Q (D, D) of ``model`` over ``dt_s``."""
+    """State transition F (D, D) and process covariance Q (D, D) of ``model`` over ``dt_s``
+    (the clock block: :meth:`ProcessModel.clock_cov`)."""
     d = model.dim
     f = np.eye(d)
-    q = np.zeros(d)
-    q[:3] = model.q_pos_mps**2 * dt_s
+    q = np.zeros((d, d))
+    q[:3, :3] = model.q_pos_mps**2 * dt_s * np.eye(3)
     if model.kind == "cv":
         f[:3, 3:6] = dt_s * np.eye(3)
-        q[3:6] = model.q_vel_mps2**2 * dt_s
-    q[model.clk0:] = model.q_clk_mps**2 * dt_s
-    return f, np.diag(q)
+        q[3:6, 3:6] = model.q_vel_mps2**2 * dt_s * np.eye(3)
+    if model.has_drift:
+        f[model.clocks, model.drift] = dt_s
+    q[model.clk0:, model.clk0:] = model.clock_cov(dt_s)
+    return f, q
 
 
 def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
             model: ProcessModel, p_fa: float, *, exclude: bool,
-            init_inflate: float = 3.0) -> EkfRun:
+            init_inflate: float = 3.0, jump_m: float = CLOCK_JUMP_M) -> EkfRun:
     """Run the EKF and its innovation test over every epoch.
 
     Parameters
@@ -81,12 +103,17 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
     p_fa : false-alarm probability per epoch of the chi-square test.
     exclude : on an alarm, leave the satellite with the largest normalised innovation out
         of the update.
-    init_inflate : factor on the first fix's standard deviations for the initial P.
+    init_inflate : factor on the first fix's standard deviations for the initial P (and on
+        the start drift's).
+    jump_m : clock jump threshold on the common-mode innovation (m).
 
     Returns
     -------
     EkfRun. The filter starts at the first epoch with ``m >= n + 1`` from a weighted least
-    squares fix; epochs with too few satellites only predict.
+    squares fix (the drift, if any, from the next epoch: :func:`initial_drift`); epochs with
+    too few satellites only predict. A clock jump at two available epochs in a row is a
+    wrong drift (a reset, or a jump between the first two epochs): the drift is corrected
+    by the second jump / dt and its variance restarted.
     """
     sv = np.asarray(pos_sv_ecef_m, dtype=float)
     pr = np.asarray(pr_m, dtype=float)
@@ -103,30 +130,52 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
     norm_innov = np.full((r_n, e_n, s_n), np.nan)
     worst = np.full((r_n, e_n), -1)
     excluded = np.zeros((r_n, e_n, s_n), dtype=bool)
+    jumps = np.zeros((r_n, e_n, n_sys))
+
+    def fix_at(k):
+        return wls(np.broadcast_to(sv[k], (r_n, s_n, 3)), pr[:, k],
+                   np.broadcast_to(np.where(used[k], 1.0 / var[k], 0.0), (r_n, s_n)),
+                   sys_idx, n_sys)
+
     k0 = -1
     for k in np.flatnonzero(available):
-        fix = wls(np.broadcast_to(sv[k], (r_n, s_n, 3)), pr[:, k],
-                  np.broadcast_to(np.where(used[k], 1.0 / var[k], 0.0), (r_n, s_n)),
-                  sys_idx, n_sys)
+        fix = fix_at(k)
         if fix.available.all():
             k0 = int(k)
             break
     if k0 < 0:
         return EkfRun(est, nis, threshold, norm_innov, np.zeros((r_n, e_n), bool), worst,
-                      excluded, np.zeros(e_n, bool))
+                      excluded, np.zeros(e_n, bool), jumps)
     available[:k0] = False
     x = np.zeros((r_n, d))
     x[:, :3] = fix.pos_ecef_m
-    x[:, model.clk0:] = np.nan_to_num(fix.clock_m)
+    x[:, model.clocks] = np.nan_to_num(fix.clock_m)
     # Initial P: the fix's covariance (ENU + clocks, rotated to ECEF), inflated.
     c = cov_enu_to_ecef(fix.pos_ecef_m, fix.cov_enu) * init_inflate**2
     p = np.zeros((r_n, d, d))
-    idx = np.r_[0:3, model.clk0:d]
+    idx = np.r_[0:3, model.clocks]
     p[:, idx[:, None], idx[None, :]] = c
     if model.kind == "cv":
         p[:, 3:6, 3:6] = np.eye(3) * 100.0  # (10 m/s)^2: velocity unknown at start
+    drift_var0 = np.zeros(r_n)
+    if model.has_drift:
+        # Start drift: the clock change between the first two epochs (robust).
+        later = np.flatnonzero(available[k0 + 1:])
+        if later.size:
+            k1 = k0 + 1 + int(later[0])
+            both = used[k0] & used[k1]
+            drift, sd = initial_drift(sv[k0], sv[k1], pr[:, k0], pr[:, k1], both, sys_idx,
+                                      n_sys, fix.pos_ecef_m, t_s[k1] - t_s[k0],
+                                      np.where(both, 1.0 / var[k0], 0.0),
+                                      solve_motion=model.kind == "cv")
+            x[:, model.drift] = drift
+            drift_var0 = np.where(np.isfinite(sd), (init_inflate * sd)**2, 0.0)
+        p[:, model.drift, model.drift] = drift_var0
     est[:, k0] = x
     eye = np.eye(d)
+    ck = np.asarray(sys_idx, dtype=int)
+    jumped = np.zeros((r_n, n_sys), dtype=bool)  # a jump at the previous available epoch
+    k_prev = k0
     for k in range(k0 + 1, e_n):
         f, q = _transition(model, t_s[k] - t_s[k - 1])
         x = x @ f.T
@@ -138,9 +187,35 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
         rng_m = np.linalg.norm(dvec, axis=-1)
         h = np.zeros((r_n, s_n, d))
         h[..., :3] = -dvec / rng_m[..., None]
-        h[..., model.clk0:] = cc
+        h[..., model.clocks] = cc
         u = used[k][None, :] & np.ones((r_n, 1), bool)
-        nu = np.where(u, np.nan_to_num(pr[:, k]) - rng_m - x[:, model.clk0:] @ cc.T, 0.0)
+        nu = np.where(u, np.nan_to_num(pr[:, k]) - rng_m - x[:, model.clocks] @ cc.T, 0.0)
+        # A receiver clock jump: re-initialise the offset from the common-mode innovation.
+        jump = clock_jump(nu, u, ck, n_sys, jump_m)  # (R, q)
+        hit = jump != 0.0
+        if hit.any():
+            jumps[:, k] = jump
+            vj = jump_variance(np.where(u, 1.0 / var[k], 0.0), ck, n_sys) * init_inflate**2
+            x[:, model.clocks] += jump
+            nu = np.where(u, nu - jump @ cc.T, 0.0)
+            diag = np.arange(model.clk0, model.clk0 + n_sys)
+            p[:, diag, diag] += np.where(hit, vj, 0.0)
+            if model.has_drift:
+                again = hit & jumped
+                n_again = again.sum(-1)
+                dt_a = max(t_s[k] - t_s[k_prev], 1e-9)
+                x[:, model.drift] += np.where(
+                    n_again > 0, np.where(again, jump, 0.0).sum(-1) / np.maximum(n_again, 1)
+                    / dt_a, 0.0)
+                restart = n_again > 0
+                if restart.any():
+                    dd = model.drift
+                    p[restart, dd, :] = 0.0
+                    p[restart, :, dd] = 0.0
+                    p[restart, dd, dd] = np.maximum(drift_var0[restart],
+                                                    vj.max(-1)[restart] / dt_a**2)
+        jumped = hit
+        k_prev = k
         h = np.where(u[..., None], h, 0.0)
         s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.diag(var[k])
         s_inv = np.linalg.inv(s_mat)
@@ -165,4 +240,4 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
         p = ikh @ p @ np.swapaxes(ikh, -1, -2) + (gain * var[k]) @ np.swapaxes(gain, -1, -2)
         est[:, k] = x
     alarm = available[None] & (nis > threshold[None])
-    return EkfRun(est, nis, threshold, norm_innov, alarm, worst, excluded, available)
+    return EkfRun(est, nis, threshold, norm_innov, alarm, worst, excluded, available, jumps)

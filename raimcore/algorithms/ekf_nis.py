@@ -24,10 +24,11 @@ from .base import (
     register,
 )
 from .ekf import run_ekf
-from .pf_llr import PROCESS_OPTIONS, noise_scale, process_model
+from .pf_llr import PROCESS_OPTIONS, clock_jump_column, noise_scale, process_model
 
 SUMMARY = (
-    "A Kalman filter follows the receiver position and clock, assuming Gaussian noise. "
+    "A Kalman filter follows the receiver position and clock (offset and drift), assuming "
+    "Gaussian noise. "
     "Each epoch it predicts the pseudoranges; the innovations (measured minus predicted), "
     "normalised by their predicted spread, add up to a chi-square statistic with one "
     "degree of freedom per satellite. Above the threshold set by the false-alarm "
@@ -37,6 +38,8 @@ SUMMARY = (
 )
 
 EQUATIONS = r"""
+- State: position, clock offset per system, one clock drift (Brown & Hwang two-state
+  clock); a clock jump (common-mode innovation above 1 km) re-initialises the offset
 - Predict $\hat x_{k|k-1} = F \hat x_{k-1|k-1}$, $P_{k|k-1} = F P_{k-1|k-1} F^T + Q$
 - Innovation $\nu = \rho - h(\hat x_{k|k-1})$, $S = H P_{k|k-1} H^T + R$,
   $R = \mathrm{diag}(\sigma_i^2)$
@@ -49,7 +52,9 @@ EQUATIONS = r"""
 
 def run(data: Measurements, options: dict) -> AlgorithmOutput:
     """Run the plain and the protected EKF on every epoch (options: the process model,
-    shared with ``pf-llr``: ``model``, ``q_pos_mps``, ``q_vel_mps2``, ``q_clk_mps``)."""
+    shared with ``pf-llr``: ``model``, ``q_pos_mps``, ``q_vel_mps2``, ``q_clk_mps``,
+    ``q_drift_mps2``). Column ``clock_jump_ms``: a receiver clock jump absorbed at that
+    epoch (ms; 0: none)."""
     model = process_model(options, len(data.systems))
     std = data.noise.std_m
     sigma = std if math.isfinite(std) else data.noise.sigma_m
@@ -76,7 +81,8 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
         excluded=prot.excluded[0] & alarm[:, None],
         isolated=np.where(alarm, prot.worst[0], -1),
         per_sat={"norm_innovation": prot.norm_innov[0]},
-        columns={"nis_plain": plain.nis[0]},
+        columns={"nis_plain": plain.nis[0],
+                 "clock_jump_ms": clock_jump_column(prot.clock_jump_m[0])},
     )
 
 

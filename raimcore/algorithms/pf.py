@@ -5,38 +5,67 @@ persistent state of a bank (:class:`ParticleBank`). Shapes follow the package ru
 axes first: ``(..., N, D)`` particles, ``(..., N)`` weights, where ``...`` is any batch of
 filters (the bank of s + 1 filters, times Monte Carlo runs for the threshold calibration).
 
-State layout (``D = 3 + 3 * (model == "cv") + q``): ECEF position (m), then the ECEF
-velocity (m/s) for the constant-velocity model, then one receiver clock per system (m).
+State layout (``D = 3 + 3 * (model == "cv") + q + drift``): ECEF position (m), then the
+ECEF velocity (m/s) for the constant-velocity model, then one receiver clock offset per
+system (m), then, with a clock-drift state (``q_drift_mps2`` not None), the receiver clock
+drift (m/s), one for all systems: they share one oscillator.
 
 Process models (spec section 3, "Filter"):
 
 - ``"static"``: random walk, ``r_k = r_{k-1} + w``, ``w ~ N(0, q_pos^2 dt I)``;
 - ``"cv"``: constant velocity, ``r_k = r_{k-1} + v_{k-1} dt``, ``v_k = v_{k-1} + w``,
   ``w ~ N(0, q_vel^2 dt I)`` (the position also gets the ``q_pos`` random walk);
-- the clocks are random walks with ``q_clk`` (no clock-drift state: the simulated clocks
-  drift by ``clock_drift_mps``, 0 in the shipped scenarios; use a larger ``q_clk`` for a
-  drifting clock).
+- the receiver clock, with a drift state, is Brown & Hwang's two-state model (ref. [1],
+  section 9.3): offset ``b_s`` of each system and the shared drift ``d``,
+  ``b_s,k = b_s,k-1 + d_{k-1} dt + w_b,s + w_bd``, ``d_k = d_{k-1} + w_d``, with the
+  white-frequency density ``q_clk^2 = c^2 S_f`` on each offset and the random-walk-frequency
+  density ``q_drift^2 = c^2 S_g`` on the drift; over ``dt`` the pair ``(w_bd, w_d)`` has
+  the covariance ``q_drift^2 [[dt^3/3, dt^2/2], [dt^2/2, dt]]`` and ``w_b,s`` the
+  variance ``q_clk^2 dt`` (ref. [1] section 9.3). The defaults are a TCXO's
+  (:data:`Q_CLK_TCXO_MPS`, :data:`Q_DRIFT_TCXO_MPS2`); a free-running receiver clock
+  (hundreds of m/s of drift) is a drift to estimate, not process noise. The particle
+  filters marginalise the drift (ref. [2]): the likelihood does not see it, so given a
+  particle's offset history it is Gaussian; each particle carries its mean, the variance
+  is common (:func:`predict`, :func:`drift_step_var`). Without a drift state (the kernel's
+  default) the offsets are random walks with ``q_clk``.
+
+Clock jumps (a receiver steering its clock by whole milliseconds, or a reset) are
+detected on the common-mode part of the innovations (:func:`clock_jump`) and the clock
+offset re-initialised instead of filtered (:func:`run_llr_bank`, :func:`~raimcore.
+algorithms.ekf.run_ekf`).
 
 Measurement model: ``rho_i = ||r - s_i|| + c dt_sys(i) + v_i`` with ``v_i`` from the
 scenario's noise model (:mod:`raimcore.measure.noise`): the filter's likelihood is its ``logpdf``.
+
+References
+----------
+.. [1] R. G. Brown, P. Y. C. Hwang, *Introduction to Random Signals and Applied Kalman
+   Filtering*, 4th ed., Wiley, 2012, section 9.3 (clock model) and Table 9.1 (Allan
+   variance parameters of timing standards).
+.. [2] T. Schön, F. Gustafsson, P.-J. Nordlund, "Marginalized particle filters for mixed
+   linear/nonlinear state-space models", IEEE Trans. Signal Processing 53(7), 2005.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import logsumexp
 
 from .._validate import check_choice, check_positive
+from ..constants import C_MPS
 from ..geometry import ecef_to_geodetic, enu_rotation
+from ..measure import MS_M
 from ..measure.noise import scaled
 
 __all__ = ["PROCESS_MODELS", "ProcessModel", "ParticleBank", "predict", "log_likelihood",
            "normalise_log_weights", "effective_sample_size", "systematic_resample",
-           "weighted_mean", "initial_cloud"]
+           "weighted_mean", "initial_cloud", "clock_jump", "initial_drift", "drift_step_var",
+           "Q_CLK_TCXO_MPS", "Q_DRIFT_TCXO_MPS2", "CLOCK_JUMP_M", "MS_M"]
 
 PROCESS_MODELS = ("static", "cv")
 #: Particle-satellite pairs per likelihood chunk (about 0.5 MB per float64 temporary).
@@ -46,6 +75,23 @@ _CHUNK_ELEMENTS = 65536
 #: run_llr_bank); tuned on seed000-step with model = "cv" (sigma 3 and 33 m).
 VEL_BOOST = 1.0
 
+# Receiver clock (Brown & Hwang 2012, ref. [1]): Allan-variance coefficients of a
+# temperature-compensated crystal oscillator, Table 9.1 ("compensated crystal").
+TCXO_H0_S = 2e-19  # white frequency h_0 (s), ref. [1] Table 9.1
+TCXO_HM2_PS = 2e-20  # random-walk frequency h_-2 (1/s), ref. [1] Table 9.1
+#: Offset (white-frequency) density ``c sqrt(S_f)``, ``S_f = h_0 / 2`` (ref. [1] section 9.3):
+#: 0.095 m / sqrt(s).
+Q_CLK_TCXO_MPS = C_MPS * math.sqrt(TCXO_H0_S / 2.0)
+#: Drift (random-walk-frequency) density ``c sqrt(S_g)``, ``S_g = 2 pi^2 h_-2`` (ref. [1]
+#: section 9.3): 0.19 m/s / sqrt(s).
+Q_DRIFT_TCXO_MPS2 = C_MPS * math.sqrt(2.0 * math.pi**2 * TCXO_HM2_PS)
+#: A common-mode innovation (median over one system's satellites) above this is a receiver
+#: clock jump, not a measurement error: a TCXO's offset is predicted to well under a metre
+#: per second and a drift error of the start to tens of m/s, while a jump of a steering
+#: receiver is 1 ms (299,792 m) and a reset arbitrary. A common-mode error on every
+#: satellite of a system moves no position (the clock absorbs it), so no fault is hidden.
+CLOCK_JUMP_M = 1000.0
+
 
 @dataclass(frozen=True)
 class ProcessModel:
@@ -54,10 +100,13 @@ class ProcessModel:
     Attributes
     ----------
     kind : ``"static"`` or ``"cv"`` (constant velocity).
-    n_clk : number of clock states (one per system).
+    n_clk : number of clock offset states (one per system).
     q_pos_mps : position random-walk density, m / sqrt(s).
     q_vel_mps2 : velocity random-walk density (``"cv"`` only), m/s / sqrt(s).
-    q_clk_mps : clock random-walk density, m / sqrt(s).
+    q_clk_mps : clock offset density (white frequency), m / sqrt(s).
+    q_drift_mps2 : clock drift random-walk density, m/s / sqrt(s); None: no drift state
+        (the offsets are random walks; the kernel default, the algorithms' options carry a
+        drift state).
     """
 
     kind: str = "static"
@@ -65,12 +114,15 @@ class ProcessModel:
     q_pos_mps: float = 0.1
     q_vel_mps2: float = 0.5
     q_clk_mps: float = 0.1
+    q_drift_mps2: float | None = None
 
     def __post_init__(self):
         check_choice("model", self.kind, PROCESS_MODELS)
         check_positive("q_pos_mps", self.q_pos_mps, allow_zero=True)
         check_positive("q_vel_mps2", self.q_vel_mps2, allow_zero=True)
         check_positive("q_clk_mps", self.q_clk_mps, allow_zero=True)
+        if self.q_drift_mps2 is not None:
+            check_positive("q_drift_mps2", self.q_drift_mps2, allow_zero=True)
 
     @property
     def clk0(self) -> int:
@@ -78,12 +130,40 @@ class ProcessModel:
         return 6 if self.kind == "cv" else 3
 
     @property
-    def dim(self) -> int:
+    def clocks(self) -> slice:
+        """The clock offset states."""
+        return slice(self.clk0, self.clk0 + self.n_clk)
+
+    @property
+    def has_drift(self) -> bool:
+        return self.q_drift_mps2 is not None
+
+    @property
+    def drift(self) -> int:
+        """Index of the clock drift state (``dim - 1``; meaningful only with one)."""
         return self.clk0 + self.n_clk
+
+    @property
+    def dim(self) -> int:
+        return self.clk0 + self.n_clk + int(self.has_drift)
+
+    def clock_cov(self, dt_s: float) -> np.ndarray:
+        """Process covariance ``(q + 1, q + 1)`` of the offsets and the drift over
+        ``dt_s`` (ref. [1] section 9.3; the integrated drift noise is common to all
+        offsets, the white-frequency part is per system); ``(q, q)`` without a drift."""
+        q, dt = self.n_clk, max(float(dt_s), 0.0)
+        if not self.has_drift:
+            return self.q_clk_mps**2 * dt * np.eye(q)
+        g = self.q_drift_mps2**2
+        out = np.zeros((q + 1, q + 1))
+        out[:q, :q] = self.q_clk_mps**2 * dt * np.eye(q) + g * dt**3 / 3.0
+        out[:q, q] = out[q, :q] = g * dt**2 / 2.0
+        out[q, q] = g * dt
+        return out
 
 
 def predict(particles, dt_s: float, model: ProcessModel, rng: np.random.Generator,
-            q_scale: float = 1.0, q_scale_vel: float = 1.0):
+            q_scale: float = 1.0, q_scale_vel: float = 1.0, drift_var=0.0):
     """Draw the predicted particles from the state equation (spec section 3, "Filter").
 
     Parameters
@@ -95,6 +175,9 @@ def predict(particles, dt_s: float, model: ProcessModel, rng: np.random.Generato
     q_scale : factor on the position and clock process-noise densities (start-up
         annealing; the velocity noise keeps its density, see
         :func:`run_llr_bank`).
+    q_scale_vel : the same for the velocity.
+    drift_var : (...,) variance of the clock drift given a particle's history (m^2/s^2),
+        with a drift state (see :class:`ParticleBank`).
 
     Returns
     -------
@@ -109,8 +192,46 @@ def predict(particles, dt_s: float, model: ProcessModel, rng: np.random.Generato
         x[..., 3:6] += model.q_vel_mps2 * q_scale_vel * sq1 * noise[..., 3:6]
     else:
         x[..., :3] += model.q_pos_mps * sq * noise[..., :3]
-    x[..., model.clk0:] += model.q_clk_mps * sq * noise[..., model.clk0:]
+    clk = model.clocks
+    x[..., clk] += model.q_clk_mps * sq * noise[..., clk]
+    if model.has_drift:
+        # Two-state clock (ref. [1] section 9.3), the drift marginalised (ref. [2]): each
+        # particle carries the mean of its drift given its own offset history, the
+        # variance drift_var (V) is common. The offsets move by that mean times dt plus a
+        # noise e with covariance S = a I + beta 1 1^T: per system a = (q_clk q_scale)^2 dt,
+        # common beta = V dt^2 + q_drift^2 dt^3 / 3 (the drift's uncertainty and its noise
+        # integrated over the step); then the drift mean is conditioned on the drawn e,
+        # d += c 1^T S^-1 e = c sum(e) / (a + q beta), c = V dt + q_drift^2 dt^2 / 2
+        # (Sherman-Morrison). V's update is drift_step_var.
+        dt = max(dt_s, 0.0)
+        a, beta, c = _drift_terms(model, drift_var, dt, q_scale)
+        common = np.sqrt(beta)[..., None] * noise[..., model.drift]
+        e = model.q_clk_mps * sq * noise[..., clk] + common[..., None]
+        x[..., clk] += x[..., model.drift, None] * dt + common[..., None]
+        den = a + model.n_clk * beta
+        gain = np.where(den > 0, c / np.where(den > 0, den, 1.0), 0.0)
+        x[..., model.drift] += gain[..., None] * e.sum(-1)
     return x
+
+
+def _drift_terms(model: ProcessModel, drift_var, dt: float, q_scale: float):
+    """``a`` (per-system offset noise), ``beta`` (common offset noise) and ``c`` (drift -
+    offset covariance) of one prediction step (see :func:`predict`), shaped like
+    ``drift_var``."""
+    v = np.asarray(drift_var, dtype=float)
+    g = model.q_drift_mps2**2
+    a = (model.q_clk_mps * q_scale)**2 * dt
+    return a, v * dt**2 + g * dt**3 / 3.0, v * dt + g * dt**2 / 2.0
+
+
+def drift_step_var(model: ProcessModel, drift_var, dt_s: float, q_scale: float = 1.0):
+    """The drift variance after a :func:`predict` step (the Riccati step of the
+    marginalised drift, ref. [2]): ``V + q_drift^2 dt - q c^2 / (a + q beta)``."""
+    dt = max(float(dt_s), 0.0)
+    a, beta, c = _drift_terms(model, drift_var, dt, q_scale)
+    den = a + model.n_clk * beta
+    red = np.where(den > 0, model.n_clk * c * c / np.where(den > 0, den, 1.0), 0.0)
+    return np.maximum(np.asarray(drift_var, float) + model.q_drift_mps2**2 * dt - red, 0.0)
 
 
 def log_likelihood(particles, pos_sv_ecef_m, pr_m, mask, sys_idx, noise, model: ProcessModel):
@@ -249,7 +370,7 @@ def availability(used, sys_idx, n_sys: int):
 
 def initial_cloud(pos_ecef_m, clock_m, cov_enu, n_particles: int, model: ProcessModel,
                   rng: np.random.Generator, *, batch=(), vel_mean_mps=None,
-                  vel_sigma_mps: float = 1.0, inflate: float = 1.0):
+                  vel_sigma_mps: float = 1.0, inflate: float = 1.0, drift_mps=None):
     """Particles drawn around a least-squares fix.
 
     Parameters
@@ -263,6 +384,9 @@ def initial_cloud(pos_ecef_m, clock_m, cov_enu, n_particles: int, model: Process
     rng : random generator.
     batch : extra batch axes inserted after ``R`` (e.g. ``(Q,)`` filters of a bank).
     inflate : factor on the standard deviations.
+    drift_mps : (R,) clock drift (m/s, default 0) of a model with a drift state
+        (:func:`initial_drift`): the drift slot (conditional mean) of every particle; its
+        variance is kept by :class:`ParticleBank`.
 
     Returns
     -------
@@ -281,11 +405,138 @@ def initial_cloud(pos_ecef_m, clock_m, cov_enu, n_particles: int, model: Process
                                    chol.reshape((r_n,) + (1,) * len(batch) + chol.shape[1:]), z)
     out = np.zeros(shape[:-1] + (model.dim,))
     out[..., :3] = draw[..., :3]
-    out[..., model.clk0:] = draw[..., 3:]
+    out[..., model.clocks] = draw[..., 3:]
     if model.kind == "cv":
         v0 = np.zeros((r_n, 3)) if vel_mean_mps is None else np.asarray(vel_mean_mps, float)
         out[..., 3:6] = v0[extra] + vel_sigma_mps * rng.standard_normal(shape[:-1] + (3,))
+    if model.has_drift:
+        d0 = np.broadcast_to(0.0 if drift_mps is None else np.asarray(drift_mps, float),
+                             (r_n,))
+        out[..., model.drift] = d0[extra]
     return out
+
+
+def initial_drift(pos_sv0_ecef_m, pos_sv1_ecef_m, pr0_m, pr1_m, used, sys_idx, n_sys: int,
+                  pos_rx_ecef_m, dt_s: float, weights, vel_rx_ecef_mps=None,
+                  solve_motion: bool = False):
+    """Receiver clock drift from the first two epochs ``dt_s`` apart: the difference of
+    their clock estimates, each solved with the first fix's position (moved by the start
+    velocity, if any), robustly.
+
+    For a receiver that stays put (or moves as predicted) the range change is known, so
+    each satellite seen at both epochs gives the clock change
+    ``(rho_1 - |s_1 - r_1|) - (rho_0 - |s_0 - r_0|)``; the median over a system's
+    satellites is robust to an outlier at either epoch (the difference of two snapshot
+    fixes is not: one heavy-tailed error moves a fix's clock by tens of metres, and the
+    drift by tens of m/s), and the position error of the first fix cancels to first order.
+
+    Parameters
+    ----------
+    pos_sv0_ecef_m, pos_sv1_ecef_m : (S, 3) satellite positions at the two epochs (m).
+    pr0_m, pr1_m : (R, S) pseudoranges (m).
+    used : (S,) bool, satellites used at both epochs.
+    sys_idx : (S,) system index; n_sys : number of systems.
+    pos_rx_ecef_m : (R, 3) the first fix (m).
+    dt_s : time between the epochs (s), > 0.
+    weights : (S,) or (R, S) ``1 / sigma^2`` of one pseudorange (1/m^2).
+    vel_rx_ecef_mps : (R, 3) start velocity, or None (static).
+    solve_motion : a moving receiver of unknown velocity: solve the position change and
+        the clock changes from the differences by weighted least squares (weights
+        ``w / 2``) instead (not robust; less precise by the geometry's dilution).
+
+    Returns
+    -------
+    drift_mps : (R,) inverse-variance weighted mean over the systems of the median clock
+        change / dt (0 where no satellite is common).
+    sigma_mps : (R,) its standard deviation, ``sqrt(2 (pi / 2) / sum w) / dt`` of the best
+        system (the median's efficiency under Gaussian noise; inf where none).
+    """
+    r0 = np.asarray(pos_rx_ecef_m, dtype=float)
+    r1 = r0 if vel_rx_ecef_mps is None else r0 + np.asarray(vel_rx_ecef_mps, float) * dt_s
+    rho0 = np.linalg.norm(np.asarray(pos_sv0_ecef_m, float)[None] - r0[:, None], axis=-1)
+    rho1 = np.linalg.norm(np.asarray(pos_sv1_ecef_m, float)[None] - r1[:, None], axis=-1)
+    change = (np.asarray(pr1_m, float) - rho1) - (np.asarray(pr0_m, float) - rho0)
+    used = np.asarray(used, dtype=bool)
+    sys_idx = np.asarray(sys_idx, dtype=int)
+    w = np.broadcast_to(np.asarray(weights, dtype=float), change.shape)
+    drift = np.zeros((change.shape[0], n_sys))
+    var = np.full((change.shape[0], n_sys), np.inf)
+    solved = False
+    if solve_motion:
+        from ..lsq import clock_columns, normal_solve
+
+        los = np.asarray(pos_sv1_ecef_m, float)[None] - r0[:, None]
+        a = np.concatenate([-los / np.linalg.norm(los, axis=-1, keepdims=True),
+                            np.broadcast_to(clock_columns(sys_idx, n_sys),
+                                            los.shape[:-1] + (n_sys,))], axis=-1)
+        wd = np.where(used, 0.5 * w, 0.0)
+        n_inv, present, ok = normal_solve(a, wd)
+        if ok.all():
+            x = np.einsum("rij,rsj,rs,rs->ri", n_inv, a, wd, np.where(used, change, 0.0))
+            pres = present[:, 3:]
+            drift = np.where(pres, x[:, 3:] / dt_s, 0.0)
+            var = np.where(pres, np.diagonal(n_inv, axis1=-2, axis2=-1)[:, 3:] / dt_s**2,
+                           np.inf)
+            solved = True  # else singular geometry: the median (static) estimate below
+    for s in range(0 if solved else n_sys):
+        m = used & (sys_idx == s)
+        if not m.any():
+            continue
+        drift[:, s] = np.median(change[:, m], axis=-1) / dt_s
+        var[:, s] = 2.0 * (math.pi / 2.0) / w[:, m].sum(-1) / dt_s**2
+    inv = np.where(np.isfinite(var), 1.0 / var, 0.0)
+    tot = inv.sum(-1)
+    out = np.where(tot > 0, (inv * drift).sum(-1) / np.maximum(tot, 1e-300), 0.0)
+    return out, np.sqrt(var.min(-1))
+
+
+def clock_jump(resid_m, mask, sys_idx, n_sys: int, threshold_m: float = CLOCK_JUMP_M):
+    """Receiver clock jumps seen in the predicted residuals of one epoch.
+
+    The common-mode part of the residuals (measured minus predicted pseudoranges) of each
+    system is their median over the system's satellites in ``mask``: robust to a fault on
+    a minority of them, and a clock jump (a receiver steering its clock by whole
+    milliseconds, or a reset) moves every one of them by the same amount while the
+    differential part stays normal. Above ``threshold_m`` (:data:`CLOCK_JUMP_M`) it is a
+    jump, and the filter re-initialises that system's clock offset by it instead of
+    testing it (a common-mode error moves no position, so no fault is hidden).
+
+    Parameters
+    ----------
+    resid_m : (..., S) predicted residuals (m).
+    mask : (..., S) bool, the satellites used.
+    sys_idx : (S,) system index; n_sys : number of systems.
+    threshold_m : jump threshold (m).
+
+    Returns
+    -------
+    (..., n_sys) the jump of each system's clock (m), 0 where none (or no satellite).
+    """
+    r = np.asarray(resid_m, dtype=float)
+    mask = np.asarray(mask, dtype=bool)
+    sys_idx = np.asarray(sys_idx, dtype=int)
+    out = np.zeros(np.broadcast_shapes(r.shape, mask.shape)[:-1] + (n_sys,))
+    for s in range(n_sys):
+        m = mask & (sys_idx == s)
+        if not m.any():
+            continue
+        v = np.where(m, r, np.nan)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a batch row without a satellite
+            med = np.nanmedian(v, axis=-1)
+        out[..., s] = np.where(np.abs(np.nan_to_num(med)) > threshold_m, np.nan_to_num(med),
+                               0.0)
+    return out
+
+
+def jump_variance(weights, sys_idx, n_sys: int):
+    """Variance (..., n_sys) of the median common-mode estimate of :func:`clock_jump`:
+    ``(pi / 2) / sum_i w_i`` over each system's satellites (the median's asymptotic
+    efficiency under Gaussian noise), ``w_i = 1 / sigma_i^2`` (..., S), 0 for unused."""
+    w = np.asarray(weights, dtype=float)
+    cc = np.asarray(sys_idx, dtype=int)[:, None] == np.arange(n_sys)[None, :]
+    wsum = w @ cc.astype(float)
+    return np.where(wsum > 0, (math.pi / 2.0) / np.maximum(wsum, 1e-300), 0.0)
 
 
 @dataclass(frozen=True)
@@ -316,14 +567,20 @@ class ParticleBank:
     particles : (..., N, D) initial cloud (equal weights).
     model : the process model.
     n_threshold : resample when ``N_eff`` falls below it (default ``2N/3``, seed 002).
+    drift_var : (...,) or a number: the variance (m^2/s^2) of the clock drift given a
+        particle's history, common to the particles of a filter (a model with a drift
+        state; the particles' drift slot holds each one's conditional mean, :func:`predict`).
     """
 
-    def __init__(self, particles, model: ProcessModel, n_threshold: float | None = None):
+    def __init__(self, particles, model: ProcessModel, n_threshold: float | None = None,
+                 drift_var=0.0):
         self.particles = np.asarray(particles, dtype=float)
         self.model = model
         n = self.particles.shape[-2]
         self.log_w = np.full(self.particles.shape[:-1], -math.log(n))
         self.n_threshold = 2.0 * n / 3.0 if n_threshold is None else float(n_threshold)
+        self.drift_var = np.array(np.broadcast_to(np.asarray(drift_var, dtype=float),
+                                                  self.particles.shape[:-2]))
 
     @property
     def n_particles(self) -> int:
@@ -337,7 +594,11 @@ class ParticleBank:
         ``mask`` (..., S) says which measurements each filter scores (all False: predict
         only, ``log_pred = 0``). See :func:`log_likelihood` for the other arguments.
         """
-        self.particles = predict(self.particles, dt_s, self.model, rng, q_scale, q_scale_vel)
+        drift_var = self.drift_var
+        self.particles = predict(self.particles, dt_s, self.model, rng, q_scale, q_scale_vel,
+                                 drift_var)
+        if self.model.has_drift:
+            self.drift_var = drift_step_var(self.model, drift_var, dt_s, q_scale)
         ll = log_likelihood(self.particles, pos_sv_ecef_m, pr_m, mask, sys_idx, noise,
                             self.model)
         # seed 002 eq. (weights): w_k = w_{k-1} p(z_k | x_k), then normalise.
@@ -386,6 +647,8 @@ class BankRun:
         each epoch's update and any resampling, NaN before the first fix; None unless
         asked for (``keep_cloud``).
     cloud_weight : (E, K) their weights, renormalised over the K, or None.
+    clock_jump_m : (R, E, q) receiver clock jumps detected and absorbed (m, per system;
+        0 where none, :func:`clock_jump`), or None.
     """
 
     estimate: np.ndarray
@@ -398,6 +661,7 @@ class BankRun:
     armed: np.ndarray
     cloud: np.ndarray | None = None
     cloud_weight: np.ndarray | None = None
+    clock_jump_m: np.ndarray | None = None
 
 
 def _noise_weight(noise):
@@ -487,7 +751,14 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     -------
     BankRun. The filters start at the first epoch with ``m >= n + 1`` from a weighted
     least-squares fix of that epoch (spread by its covariance); until then everything is
-    NaN / not available. Epochs with too few satellites only predict.
+    NaN / not available. With a drift state, the drift starts from the clock change
+    between the first two epochs (:func:`initial_drift`). Epochs with too few satellites
+    only predict.
+    Before each update, a receiver clock jump seen by the main filter
+    (:func:`clock_jump`) shifts the clock offsets of every filter of that realisation by
+    it (spread by the jump estimate's variance); a jump at two available epochs in a row
+    is a wrong drift (a reset, or a jump between the first two epochs) and corrects the
+    drift by the second jump / dt.
     """
 
     sv = np.asarray(pos_sv_ecef_m, dtype=float)
@@ -516,7 +787,8 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     if k0 < 0:
         nan = np.full((r_n, e_n), np.nan)
         return BankRun(estimate, n_eff, llr, np.full((r_n, e_n, s_n), np.nan), nan,
-                       np.full((r_n, e_n), -1), np.zeros(e_n, bool), np.zeros(e_n, bool))
+                       np.full((r_n, e_n), -1), np.zeros(e_n, bool), np.zeros(e_n, bool),
+                       clock_jump_m=np.zeros((r_n, e_n, n_sys)))
     available[:k0] = False
     vel0, vel_sd = None, 1.0
     if model.kind == "cv":
@@ -529,9 +801,30 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
             vel0 = np.nan_to_num((fix1.pos_ecef_m - fix.pos_ecef_m) / dt)
             vel_sd = 2.0 * math.sqrt(np.nanmax(np.trace(fix.cov_enu[:, :3, :3], axis1=1,
                                                          axis2=2))) / dt
+    drift0, drift_sd = np.zeros(r_n), np.zeros(r_n)
+    if model.has_drift:
+        # Start drift: the clock change between the first two epochs (a clock jump
+        # between them is caught below as two jumps in a row).
+        later = np.flatnonzero(available[k0 + 1:])
+        if later.size:
+            k1 = k0 + 1 + int(later[0])
+            both = used[k0] & used[k1]
+            drift0, drift_sd = initial_drift(
+                sv[k0], sv[k1], pr[:, k0], pr[:, k1], both, sys_idx, n_sys,
+                fix.pos_ecef_m, t_s[k1] - t_s[k0],
+                np.where(both, _noise_weight(noise_at(k0)), 0.0), vel_rx_ecef_mps=vel0,
+                solve_motion=model.kind == "cv" and vel0 is None)
+        drift_sd = np.where(np.isfinite(drift_sd), drift_sd, 0.0)
+    # The start drift's variance is not inflated like the fix's: its spread moves every
+    # offset of the cloud at each step, and 3x cost convergence on seed002 and on
+    # seed000-step with model "cv" (sigma 33 m); the marginalised drift learns fast.
     bank = ParticleBank(initial_cloud(fix.pos_ecef_m, fix.clock_m, fix.cov_enu, n_particles,
                                       model, rng, batch=(q_n,), vel_mean_mps=vel0,
-                                      vel_sigma_mps=vel_sd, inflate=3.0), model)
+                                      vel_sigma_mps=vel_sd, inflate=3.0, drift_mps=drift0),
+                        model, drift_var=drift_sd[:, None]**2)
+    jumps = np.zeros((r_n, e_n, n_sys))
+    jumped = np.zeros((r_n, n_sys), dtype=bool)  # a jump at the previous available epoch
+    k_prev = k0
     k_keep = min(int(keep_cloud), n_particles)
     cloud = cloud_w = None
     if k_keep > 0:
@@ -542,7 +835,9 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
         cloud_w[k0] = 1.0 / k_keep
     est0 = np.zeros((r_n, model.dim))
     est0[:, :3] = fix.pos_ecef_m
-    est0[:, model.clk0:] = np.nan_to_num(fix.clock_m)
+    est0[:, model.clocks] = np.nan_to_num(fix.clock_m)
+    if model.has_drift:
+        est0[:, model.drift] = drift0
     estimate[:, k0] = est0[:, None, :]
     first_llr = k0 + 1 + burn_in
     # Start-up annealing (spec section 3, "Start-up"): the process noise starts at about
@@ -556,6 +851,11 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
         q_scale = 1.0 + (boost - 1.0) * (1.0 - frac) ** 2
         q_scale_vel = 1.0 + (boost_vel - 1.0) * (1.0 - frac) ** 2
         mask = drop & used[k][None, :] if available[k] else np.zeros((q_n, s_n), bool)
+        if available[k]:
+            jumped = _absorb_clock_jump(bank, k, t_s[k] - t_s[k_prev], t_s[k] - t_s[k - 1],
+                                        sv[k], pr[:, k], used[k], sys_idx, n_sys,
+                                        noise_at(k), jumped, jumps, rng)
+            k_prev = k
         res = bank.step(t_s[k] - t_s[k - 1], sv[k][None, None], pr[:, k][:, None, :],
                         mask[None], sys_idx, noise_at(k), rng, q_scale, q_scale_vel)
         estimate[:, k] = res.estimate
@@ -580,7 +880,50 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     beta = np.take_along_axis(scored, arg[..., None], axis=-1)[..., 0]
     beta = np.where(armed[None], beta, np.nan)
     arg = np.where(armed[None], arg, -1)
-    return BankRun(estimate, n_eff, llr, cum, beta, arg, available, armed, cloud, cloud_w)
+    return BankRun(estimate, n_eff, llr, cum, beta, arg, available, armed, cloud, cloud_w,
+                   jumps)
+
+
+def _absorb_clock_jump(bank: ParticleBank, k: int, dt_avail: float, dt_step: float, sv,
+                       pr, used, sys_idx, n_sys: int, noise, jumped, jumps, rng):
+    """Detect a receiver clock jump at epoch ``k`` on the main filter's prediction and
+    shift the clock offsets of every filter by it (:func:`run_llr_bank`); returns the
+    per-system "jumped" flags (R, q) and writes the jumps into ``jumps[:, k]``."""
+    model = bank.model
+    w = np.exp(bank.log_w[:, 0])
+    m = weighted_mean(bank.particles[:, 0], w)  # (R, D), state at k - 1
+    pos = m[:, :3] + (m[:, 3:6] * dt_step if model.kind == "cv" else 0.0)
+    clk = m[:, model.clocks]
+    if model.has_drift:
+        clk = clk + m[:, model.drift, None] * dt_step
+    rng_m = np.linalg.norm(sv[None] - pos[:, None], axis=-1)
+    resid = np.nan_to_num(pr) - rng_m - clk[:, np.asarray(sys_idx, dtype=int)]
+    jump = clock_jump(resid, used[None], sys_idx, n_sys)  # (R, q)
+    hit = jump != 0.0
+    if not hit.any():
+        return np.zeros_like(jumped)
+    jumps[:, k] = jump
+    var = jump_variance(np.where(used, _noise_weight(noise), 0.0)[None], sys_idx, n_sys)
+    spread = np.sqrt(var)[:, None, None, :] * rng.standard_normal(
+        bank.particles.shape[:-1] + (n_sys,))
+    shift = jump
+    if model.has_drift:
+        # Two jumps in a row: the drift is wrong (a reset, or a jump before the start).
+        # The particles are still at k - 1: the corrected drift moves this prediction too,
+        # so the offsets move by the rest of the jump.
+        again = hit & jumped
+        n_again = again.sum(-1)
+        corr = np.where(n_again > 0, np.where(again, jump, 0.0).sum(-1)
+                        / np.maximum(n_again, 1) / max(dt_avail, 1e-9), 0.0)
+        bank.particles[..., model.drift] += corr[:, None, None]
+        restart = n_again > 0
+        floor = np.broadcast_to(var.max(-1) / max(dt_avail, 1e-9)**2, restart.shape)
+        bank.drift_var[restart] = np.maximum(bank.drift_var[restart],
+                                             floor[restart, None])
+        shift = jump - corr[:, None] * dt_step
+    bank.particles[..., model.clocks] += np.where(hit[:, None, None, :],
+                                                 shift[:, None, None, :] + spread, 0.0)
+    return hit
 
 
 # -- threshold calibration (spec section 3: "tau has no closed form") --------------------

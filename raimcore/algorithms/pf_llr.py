@@ -26,6 +26,7 @@ from .base import (
     register,
 )
 from .pf import (
+    MS_M,
     PROCESS_MODELS,
     ProcessModel,
     cached_tau,
@@ -51,7 +52,9 @@ SUMMARY = (
 )
 
 EQUATIONS = r"""
-- State $x = [r, c\,\delta t]$, static: $x_k = x_{k-1} + w_k$; pseudorange
+- State $x = [r, c\,\delta t_s, c\,\dot{\delta t}]$ (one clock offset per system, one
+  drift), static: $r_k = r_{k-1} + w_k$, $c\,\delta t_{s,k} = c\,\delta t_{s,k-1}
+  + c\,\dot{\delta t}\,\Delta t + w$; pseudorange
   $\rho_i = \lVert r - s_i \rVert + c\,\delta t + v_i$, $v_i$ heavy-tailed
 - Weights $w_k^{(i)} \propto w_{k-1}^{(i)}\, p(y_k \mid x_k^{(i)})$,
   $N_{eff} = 1 / \sum_i (w_k^{(i)})^2$, resample when $N_{eff} < 2N/3$
@@ -81,8 +84,12 @@ PROCESS_OPTIONS = (
            lo=0.0, hi=1.0e4),
     option("q_vel_mps2", float, 0.5, "velocity process noise (constant-velocity model)",
            unit="m/s^2", lo=0.0, hi=1.0e4),
-    option("q_clk_mps", float, 0.1, "receiver clock process noise", unit="m/s", lo=0.0,
+    option("q_clk_mps", float, 0.1, "receiver clock offset process noise (white "
+           "frequency; a TCXO: 0.095, Brown & Hwang 2012 Table 9.1)", unit="m/s", lo=0.0,
            hi=1.0e6),
+    option("q_drift_mps2", float, 0.2, "receiver clock drift process noise (random-walk "
+           "frequency; a TCXO: 0.19, Brown & Hwang 2012 Table 9.1)", unit="m/s^2", lo=0.0,
+           hi=1.0e3),
 )
 
 #: Options (scenario keys) of PF-LLR.
@@ -105,9 +112,20 @@ OPTIONS = (
 
 
 def process_model(options: dict, n_clk: int) -> ProcessModel:
-    """The :class:`ProcessModel` named by the (resolved) options (shared with ``ekf``)."""
+    """The :class:`ProcessModel` named by the (resolved) options (shared with ``ekf``):
+    always with the clock-drift state (a free-running receiver clock drifts by hundreds of
+    m/s; a steady one estimates a drift near 0)."""
     return ProcessModel(kind=options["model"], n_clk=n_clk, q_pos_mps=options["q_pos_mps"],
-                        q_vel_mps2=options["q_vel_mps2"], q_clk_mps=options["q_clk_mps"])
+                        q_vel_mps2=options["q_vel_mps2"], q_clk_mps=options["q_clk_mps"],
+                        q_drift_mps2=options["q_drift_mps2"])
+
+
+def clock_jump_column(jump_m) -> np.ndarray:
+    """The result table's ``clock_jump_ms`` (E,) from a filter's jumps (E, q) in m: the
+    largest jump over the systems, in milliseconds of receiver clock (0: none)."""
+    j = np.asarray(jump_m, dtype=float)
+    pick = np.take_along_axis(j, np.argmax(np.abs(j), axis=-1)[..., None], axis=-1)[..., 0]
+    return pick / MS_M
 
 
 def noise_scale(data: Measurements):
@@ -155,7 +173,9 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
     (``"memory"``, ``"disk"``, ``"off"``), ``tau_sets`` (``"first"``: calibrate once, for
     the satellites in view at the first armed epoch; ``"each"``: once per satellite set in
     view, each armed epoch tested against its own set's tau), ``model``, ``q_pos_mps``,
-    ``q_vel_mps2``, ``q_clk_mps`` (process model, :class:`raimcore.algorithms.pf.ProcessModel`).
+    ``q_vel_mps2``, ``q_clk_mps``, ``q_drift_mps2`` (process model,
+    :class:`raimcore.algorithms.pf.ProcessModel`). Column ``clock_jump_ms``: a receiver
+    clock jump absorbed at that epoch (ms; 0: none).
     """
     n, window, burn_in = options["n_particles"], options["window"], options["burn_in"]
     p_fa, cache, tau_sets = options["p_fa_window"], options["tau_cache"], options["tau_sets"]
@@ -205,7 +225,8 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
         isolated=faulty,
         per_sat={"llr": np.where(armed[:, None], bank.cum_llr[0], np.nan)},
         columns={"beta": np.where(armed, beta, np.nan), "n_eff": bank.n_eff[0, :, 0],
-                 "memory_epochs": np.full(e_n, window)},
+                 "memory_epochs": np.full(e_n, window),
+                 "clock_jump_ms": clock_jump_column(bank.clock_jump_m[0])},
         extras=extras,
     )
 

@@ -18,6 +18,7 @@ import math
 
 import numpy as np
 
+from ..constants import C_MPS
 from ..lsq import clock_columns
 from ..sky.spp import elevation_sigma
 from .data import Measurements, Truth
@@ -26,14 +27,16 @@ from .faults import Fault, fault_biases
 from .noise import make_noise
 
 __all__ = ["measure", "Measurements", "Truth", "apply_restrict", "fault_notes",
-           "error_statistics"]
+           "error_statistics", "receiver_clock_m"]
 
 #: Keys that shape a simulated sky only: on a recording, a value other than the default
 #: has no effect and is said so.
 SIMULATION_ONLY_KEYS = ("constellation", "rename", "trajectory", "lat_deg", "lon_deg",
                         "height_m", "speed_mps", "heading_deg", "climb_mps",
                         "cruise_speed_mps", "cruise_alt_m", "climb_s", "turn_start_s",
-                        "turn_rate_dps", "turn_deg", "clock_drift_mps")
+                        "turn_rate_dps", "turn_deg", "clock_drift_mps", "clock_jumps_s")
+#: One millisecond of receiver clock as a range (m): the step of a clock-steering receiver.
+MS_M = 1e-3 * C_MPS
 
 
 def measure(sky, s) -> tuple[Measurements, Truth]:
@@ -51,8 +54,12 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
         eps = noise.sample(np.random.default_rng(noise_ss), sky.range_m.shape, t_s=t)
         cc = clock_columns(sky.sys_idx, len(sky.systems))
         clk0 = np.random.default_rng(clock_ss).uniform(-3e5, 3e5, len(sky.systems))
-        clock = clk0[None, :] + s.clock_drift_mps * t[:, None]
+        drift = receiver_clock_m(t, s.clock_drift_mps, s.clock_jumps_s)
+        clock = clk0[None, :] + drift[:, None]
         clean = sky.range_m + clock @ cc.T + eps
+        if s.clock_jumps_s:
+            notes.append(f"simulated receiver clock: drift {s.clock_drift_mps:g} m/s, 1 ms "
+                         f"jumps at t = {', '.join(f'{x:g}' for x in s.clock_jumps_s)} s")
         sigma = np.full(clean.shape, s.sigma_m)
     else:
         clean = sky.pr_m
@@ -79,6 +86,19 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
             notes.append(note)
     notes += fault_notes(s.faults, truth, names, t)
     return dataclasses.replace(meas, notes=tuple(notes)), truth
+
+
+def receiver_clock_m(t_s, drift_mps: float, jumps_s=()) -> np.ndarray:
+    """A free-running receiver clock (E,) in metres, relative to its value at t = 0.
+
+    ``drift_mps * t`` plus a 1 ms jump (:data:`MS_M`) at each time of ``jumps_s``, against
+    the drift (a receiver that steers its clock by whole milliseconds brings it back
+    toward system time; forward when the drift is 0), from that epoch on.
+    """
+    t = np.asarray(t_s, dtype=float)
+    step = -MS_M if drift_mps > 0 else MS_M
+    n_jumps = (t[:, None] >= np.asarray(jumps_s, dtype=float)[None, :]).sum(-1)
+    return drift_mps * t + step * n_jumps
 
 
 def apply_restrict(used, t, sat_names, restrict) -> None:
