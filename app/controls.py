@@ -99,6 +99,8 @@ def _text_of(value) -> str:
     """A value as text that parses back to itself (``repr`` of floats round-trips)."""
     if isinstance(value, float):
         return repr(value)
+    if isinstance(value, tuple | list):  # a list of names: "GPS, GAL"
+        return ", ".join(str(v) for v in value)
     return str(value)
 
 
@@ -113,6 +115,8 @@ def _parse_text(key: Key, text: str):
                 return conv(t)
             except ValueError:
                 continue
+    if key.kind in ("choices", "strings"):  # "GPS, GAL" (commas or spaces)
+        return [w for w in t.replace(",", " ").split() if w]
     return t
 
 

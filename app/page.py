@@ -53,6 +53,9 @@ SIDE_SHARE = 0.48
 #: The window assumed until the page says (px).
 DEFAULT_WINDOW = (1600, 1000)
 VIEWPORT_KEY = "raim-studio-viewport"
+#: The local-storage key where the page counts the time updates it has painted
+#: (:meth:`PageScript.painted_count`).
+DRAWN_KEY = "raim-studio-painted"
 #: The prefix viser's client puts before the keys the server reads
 #: (``LOCAL_STORAGE_PREFIX`` in its ``MessageHandler.tsx``).
 LOCAL_STORAGE_PREFIX = "viser-user:"
@@ -107,7 +110,7 @@ def carried_state(content: str) -> dict | None:
 # Installed once per page. ``R.state`` is the latest time update; ``R.apply(gd)`` brings
 # one plot to it; every Plotly.react made by viser is followed by ``R.apply``.
 HELPER_JS = r"""
-((timeLabel, attr) => {
+((timeLabel, attr, drawnKey) => {
   const R = window.__raimStudio = window.__raimStudio || {state: null};
   R.timeLabel = timeLabel;
   if (R.installed || !window.Plotly) return;
@@ -169,7 +172,15 @@ HELPER_JS = r"""
     R.state = state;
     if (R.pending) return;
     R.pending = true;
-    queueMicrotask(() => { R.pending = false; R.each(R.apply); });
+    queueMicrotask(() => {
+      R.pending = false;
+      R.each(R.apply);
+      // Count the updates painted (Play reads the count to match the page's pace).
+      requestAnimationFrame(() => setTimeout(() => {
+        R.painted = (R.painted || 0) + 1;
+        try { localStorage.setItem(drawnKey, String(R.painted)); } catch (e) {}
+      }, 0));
+    });
   };
   // The cursor follows the time slider in the page, before the server answers: t
   // snapped to the run's epochs as the server does (the first epoch at or after t).
@@ -226,7 +237,7 @@ HELPER_JS = r"""
     const after = () => { try { R.apply(gd); } catch (e) { console.warn(e); } return gd; };
     return out && out.then ? out.then(after) : after();
   };
-})(%s, %s);
+})(%s, %s, %s);
 """
 
 VIEWPORT_JS = (
@@ -269,7 +280,8 @@ class PageScript:
         ``time_label`` names the time slider the plots' cursor follows."""
         with self._lock:
             if not self._installed:
-                self.run(HELPER_JS % (json.dumps(time_label), json.dumps(CARRIER_ATTR)))
+                self.run(HELPER_JS % (json.dumps(time_label), json.dumps(CARRIER_ATTR),
+                                      json.dumps(LOCAL_STORAGE_PREFIX + DRAWN_KEY)))
                 self._installed = True
 
     def send_time(self, state: dict) -> None:
@@ -278,6 +290,20 @@ class PageScript:
         self.last_state = state
         if self.carrier is not None:
             self.carrier.content = carrier_html(state)
+
+    def painted_count(self, timeout_s: float = 2.0) -> int | None:
+        """How many time updates the page has painted (several arriving before a paint
+        count once); None: no page, no answer, or none painted yet. One round trip."""
+        if not self.live:
+            return None
+        try:
+            raw = self.client.local_storage.get_item(DRAWN_KEY, timeout=timeout_s)
+        except (RuntimeError, TimeoutError):
+            return None
+        try:
+            return int(raw) if raw else None
+        except (TypeError, ValueError):
+            return None
 
     def probe_viewport(self, timeout_s: float = PROBE_TIMEOUT_S) -> tuple[int, int] | None:
         """The page's window size (px), or None (no page, no answer, closed).

@@ -47,6 +47,7 @@ from raimcore.constants import (
     WGS84_B_M,
 )
 from raimcore.geometry import az_el, ecef_to_geodetic, enu_rotation, geodetic_to_ecef
+from raimcore.sky.constellations import GAL_A_M, GLO_A_M
 
 from .figures import STATE_COLORS, STATE_ORDER
 
@@ -77,6 +78,8 @@ BIAS_CUE_MAX = 4.5
 ORBIT_RADIUS_M = {
     "GPS": GPS_SQRT_A**2,  # 26,560 km: GPS SPS PS 5th ed., table 3.1-1
     "BDS": BDS_GEO_RADIUS_M,  # 42,164 km: BeiDou GEO and IGSO
+    "GAL": GAL_A_M,  # 29,600 km: Galileo OS SDD (raimcore.sky.constellations)
+    "GLO": GLO_A_M,  # 25,510 km: GLONASS ICD 5.1 (raimcore.sky.constellations)
 }
 #: Camera framing: the largest orbit's sphere, this much enlarged (labels above the
 #: satellites), fits the narrower half-angle of the view.

@@ -359,7 +359,7 @@ def test_every_lesson_walks_to_its_check_in_the_browser(dash, browser):
             assert session.scheduler.wait_idle(120), lesson.id
             assert session.preset.value == lesson.scenario_name
             first = _answer(page, session)
-            assert first.startswith("❌"), (lesson.id, first)
+            assert first.startswith("✘"), (lesson.id, first)
 
             (answer,) = lesson.test_pass[:1]
             for handle, value, folder in _student_edits(session, answer):
@@ -374,7 +374,20 @@ def test_every_lesson_walks_to_its_check_in_the_browser(dash, browser):
                             _student_edits(session, answer)], session.scenario, want)
             assert session.scheduler.wait_idle(180), lesson.id
             final = _answer(page, session)
-            assert final.startswith("✅"), (lesson.id, final)
+            assert final.startswith("✔"), (lesson.id, final)
         page.screenshot(path=str(SHOTS / "lesson.png"))
     finally:
         _close(dash, page, session)
+
+
+def test_the_screenshot_script_makes_the_readme_pictures(dash, browser, tmp_path):
+    """``tests/dashboard_shots.py`` (the README's pictures) runs and writes two pictures
+    of the window's size."""
+    import imageio.v3 as iio
+
+    import dashboard_shots
+
+    paths = dashboard_shots.make_shots(tmp_path, dash=dash, browser=browser)
+    assert [p.name for p in paths] == ["dashboard.png", "lesson.png"]
+    for p in paths:
+        assert iio.imread(p).shape[:2] == dashboard_shots.SIZE[::-1]

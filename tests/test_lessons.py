@@ -29,12 +29,12 @@ from raimcore.scenario import load_scenario
 from raimcore.scoring import Rate
 
 LESSONS = load_lessons()
-#: One lesson per topic of issue 14, in this order.
+#: One lesson per topic of issue 14 (and issue 15's phone log), in this order.
 TOPIC_IDS = [
     "01-what-is-raim", "02-parity-chi-square", "03-detection-isolation", "04-ramp-delay",
     "05-slope-protection-level", "06-geometry-dop", "07-baro-aiding",
     "08-solution-separation", "09-correlated-noise-pf-llr", "10-several-faults",
-    "11-real-recording",
+    "11-real-recording", "12-phone-log",
 ]
 #: "Short" lesson scenarios: tens to a few hundred epochs (600 where false alarms at
 #: P_fa = 0.05 are counted).
@@ -389,10 +389,10 @@ def test_lessons_tab_walks_a_lesson_to_its_check(viser_gui, tmp_path):
     tab.setup_button.value = True  # a click
     assert session.opened == ["lesson-04-ramp-delay"]
     ok, msg = tab.check()
-    assert not ok and "❌" in tab.answer_md.content and "17 s after" in msg
+    assert not ok and "✘" in tab.answer_md.content and "17 s after" in msg
     session.open_scenario(session.scenario.replace(sigma_m=3.0))  # the student's answer
     tab.check_button.value = True
-    assert tab.answer_md.content.startswith("✅") and "2 s after" in tab.answer_md.content
+    assert tab.answer_md.content.startswith("✔") and "2 s after" in tab.answer_md.content
     # a run that lags behind the controls is not judged
     session.scenario = session.scenario.replace(sigma_m=4.0)
     ok, msg = tab.check()

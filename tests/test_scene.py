@@ -419,3 +419,11 @@ def test_an_attached_legend_follows_the_mask(server, gps_result):
 ])
 def test_label_text(state, bias, faulted, text):
     assert scene.label_text("G05", state, bias, faulted) == text
+
+
+def test_every_system_a_scenario_takes_has_an_orbit_radius_for_framing():
+    from raimcore.scenario import SYSTEMS
+
+    assert set(scene.ORBIT_RADIUS_M) == set(SYSTEMS)
+    assert 25.0e6 < scene.ORBIT_RADIUS_M["GLO"] < scene.ORBIT_RADIUS_M["GPS"] + 1 < \
+        scene.ORBIT_RADIUS_M["GAL"] < scene.ORBIT_RADIUS_M["BDS"]
