@@ -2,10 +2,11 @@
 has (:class:`Measurements`) and what only the study knows (:class:`Truth`).
 
 One implementation for both sky sources, in this order: elevation mask, ``restrict``
-windows, the pseudoranges (a simulated sky: geometric range + receiver clock + noise
-(:mod:`raimcore.measure.noise`); a recording: its real corrected pseudoranges), the
-recording's measured-error note (before any fault), the faults
-(:mod:`raimcore.measure.faults`), the barometric altimeter.
+windows, the 1-sigma of every pseudorange from the scenario's ``error_model``
+(:mod:`raimcore.measure.error_models`), the pseudoranges (a simulated sky: geometric range
++ receiver clock + noise of that sigma (:mod:`raimcore.measure.noise`); a recording: its
+real corrected pseudoranges), the recording's measured-error note (before any fault), the
+faults (:mod:`raimcore.measure.faults`), the barometric altimeter.
 
 Random streams (noise, receiver clock, baro) are spawned from ``s.seed`` with
 ``SeedSequence``, so each is reproducible on its own.
@@ -20,8 +21,8 @@ import numpy as np
 
 from ..constants import C_MPS
 from ..lsq import clock_columns
-from ..sky.spp import elevation_sigma
 from .data import Measurements, Truth
+from .error_models import model_sigma, resolve_model
 from .errors import error_statistics
 from .faults import Fault, fault_biases
 from .noise import make_noise
@@ -45,13 +46,18 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
     used = sky.trackable & (sky.el_rad >= math.radians(s.mask_deg))
     apply_restrict(used, t, names, s.restrict)
     bias = fault_biases(s.faults, t, names)
-    noise = make_noise(s.noise, s.sigma_m, mixture_eps=s.mixture_eps,
+    model = resolve_model(s.error_model, sky.recorded)
+    sigma, model_notes = model_sigma(model, sky, used, s.sigma_m)
+    sigma_ref = _reference_sigma(model, sigma, used, s.sigma_m)
+    noise = make_noise(s.noise, sigma_ref, mixture_eps=s.mixture_eps,
                        mixture_scale=s.mixture_scale, student_nu=s.student_nu,
                        corr_s=s.noise_corr_s)
     noise_ss, clock_ss, baro_ss = np.random.SeedSequence(int(s.seed)).spawn(3)
-    notes = list(sky.notes)
+    notes = list(sky.notes) + list(model_notes)
     if sky.pr_m is None:
-        eps = noise.sample(np.random.default_rng(noise_ss), sky.range_m.shape, t_s=t)
+        # The noise model's draw (its shape and correlation) at the model's sigma.
+        eps = noise.sample(np.random.default_rng(noise_ss), sky.range_m.shape, t_s=t) \
+            * (sigma / sigma_ref)
         cc = clock_columns(sky.sys_idx, len(sky.systems))
         clk0 = np.random.default_rng(clock_ss).uniform(-3e5, 3e5, len(sky.systems))
         drift = receiver_clock_m(t, s.clock_drift_mps, s.clock_jumps_s)
@@ -60,10 +66,8 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
         if s.clock_jumps_s:
             notes.append(f"simulated receiver clock: drift {s.clock_drift_mps:g} m/s, 1 ms "
                          f"jumps at t = {', '.join(f'{x:g}' for x in s.clock_jumps_s)} s")
-        sigma = np.full(clean.shape, s.sigma_m)
     else:
         clean = sky.pr_m
-        sigma = elevation_sigma(sky.el_rad, s.sigma_m)  # the assumed model of the real errors
         notes += _ignored_on_recording(s)
     baro_alt = None
     if s.baro:
@@ -75,7 +79,7 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
         pos_sv_ecef_m=sky.pos_sv_ecef_m, pr_m=pr, used=used, az_rad=sky.az_rad,
         el_rad=sky.el_rad, sigma_m=sigma, noise=noise, p_fa=s.p_fa, p_md=s.p_md,
         hal_m=s.hal_m, val_m=s.val_m, seed=int(s.seed), baro_alt_m=baro_alt,
-        sigma_baro_m=s.sigma_baro_m if s.baro else None)
+        sigma_baro_m=s.sigma_baro_m if s.baro else None, error_model=model)
     truth = Truth(pos_rx_ecef_m=sky.pos_rx_ecef_m, vel_rx_ecef_mps=sky.vel_rx_ecef_mps,
                   fault_bias_m=bias, used=used)
     if sky.pr_m is not None:  # a recording: measure its errors before any fault is added
@@ -86,6 +90,18 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
             notes.append(note)
     notes += fault_notes(s.faults, truth, names, t)
     return dataclasses.replace(meas, notes=tuple(notes)), truth
+
+
+def _reference_sigma(model: str, sigma, used, sigma_m: float) -> float:
+    """The scale of the noise model (``Measurements.noise.sigma_m``): ``sigma_m`` for the
+    models it scales (``uniform``, ``elevation``), else the median sigma of the used
+    measurements, so that the per-satellite factors ``sigma / noise.sigma_m`` the filters
+    apply stay near 1."""
+    if model in ("uniform", "elevation"):
+        return float(sigma_m)
+    pick = sigma[used] if np.any(used) else sigma.reshape(-1)
+    pick = pick[np.isfinite(pick) & (pick > 0)]
+    return float(np.median(pick)) if pick.size else float(sigma_m)
 
 
 def receiver_clock_m(t_s, drift_mps: float, jumps_s=()) -> np.ndarray:

@@ -33,7 +33,8 @@ class Measurements:
     az_rad, el_rad : (E, S) azimuth and elevation of each satellite (the receiver knows
         them to far better than a degree from its own fix; they set the mask and the
         elevation error model).
-    sigma_m : (E, S) 1-sigma of each pseudorange as the algorithms should assume (m).
+    sigma_m : (E, S) 1-sigma of each pseudorange as the algorithms should assume (m),
+        from the scenario's error model (:mod:`raimcore.measure.error_models`).
     noise : the assumed noise model (has ``logpdf``), see :mod:`raimcore.measure.noise`.
     p_fa, p_md : false-alarm and missed-detection probabilities.
     hal_m, val_m : horizontal and vertical alert limits (m).
@@ -41,6 +42,8 @@ class Measurements:
     baro_alt_m : (E,) barometric altitude measurement (m, ellipsoidal) or None when off.
     sigma_baro_m : its 1-sigma (m) or None.
     notes : remarks about the data for the user (e.g. satellites of a recording left out).
+    error_model : the error model that set ``sigma_m`` (``"uniform"``, ``"elevation"``,
+        ``"rtklib"``, ``"broadcast"``, ``"measured"``), or None when not named.
     """
 
     t_s: np.ndarray
@@ -62,6 +65,7 @@ class Measurements:
     baro_alt_m: np.ndarray | None = None
     sigma_baro_m: float | None = None
     notes: tuple[str, ...] = ()
+    error_model: str | None = None
 
     @property
     def n_epochs(self) -> int:

@@ -1,8 +1,10 @@
 """Pseudorange noise models: Gaussian, Gaussian mixture and Student-t, white or time-correlated.
 
 Each model draws samples with an explicit ``np.random.Generator`` and gives the log density
-that a particle filter uses as its likelihood. ``sigma_m`` is the core (nominal) 1-sigma the
-snapshot algorithms assume; heavy-tailed models add outliers on top of it.
+that a particle filter uses as its likelihood. ``sigma_m`` is the core (nominal) 1-sigma;
+heavy-tailed models add outliers on top of it. The measure stage builds the model at a
+reference scale and gives each pseudorange its own sigma from the scenario's error model
+(:mod:`raimcore.measure.error_models`): a simulation draws ``sample() * sigma / sigma_m``.
 
 **Time correlation.** Real pseudorange errors (multipath, residual troposphere and
 ionosphere, broadcast orbit and clock) are correlated over minutes (fitted on the
@@ -17,8 +19,9 @@ Gaussian model this is exactly the Gauss-Markov process with lag-``dt`` autocorr
 ``exp(-dt / corr_s)``. ``logpdf`` is always the marginal density (the filters treat the
 noise as white; that mismatch is the point of studying it).
 
-:class:`Scaled` gives a model a per-satellite scale (a recording's elevation model), and
-:func:`fit_gauss_markov` fits scale and correlation time to measured error series.
+:class:`Scaled` gives a model a per-satellite scale (the error model's sigma over the
+reference scale), and :func:`fit_gauss_markov` fits scale and correlation time to measured
+error series.
 """
 
 from __future__ import annotations

@@ -14,6 +14,12 @@ Rules, stated once:
 - *unavailable* epochs (too few satellites, singular geometry) carry NaN positions and enter
   no statistic; they are counted. *Detect-only* epochs (one redundant measurement) enter the
   detection rates but not the isolation rate; they are counted too.
+- *the error model against p_fa*: the fault-free alarm share is set against the scenario's
+  ``p_fa`` with its 95% interval (``Summary.false_alarm_check``); when the whole interval
+  lies above ``p_fa``, a note says that the error model under-bounds the errors and names
+  it. The share counts every available fault-free epoch (a filter's not-yet-armed epochs
+  too), and the interval assumes independent epochs: time-correlated real errors make
+  the true uncertainty wider.
 """
 
 from __future__ import annotations
@@ -33,7 +39,8 @@ from ..lsq import clock_columns, geometry_rows
 from ..measure.data import Measurements, Truth
 from .table import ResultTable
 
-__all__ = ["make_table", "summarize", "Summary", "Rate", "in_fault_memory", "ResultTable"]
+__all__ = ["make_table", "summarize", "Summary", "Rate", "in_fault_memory", "ResultTable",
+           "false_alarm_check"]
 
 
 @dataclass(frozen=True)
@@ -76,7 +83,12 @@ class Summary:
     where the algorithm can isolate, i.e. not detect-only), ``pl_availability`` over all
     epochs. Times, errors (m) and means are over available epochs; None where there is
     nothing to average. ``notes`` say what the user should know (faults that never act,
-    ignored keys, a recording's measured errors).
+    ignored keys, a recording's measured errors, an error model that under-bounds).
+
+    ``p_fa`` and ``error_model`` are those of the run; ``false_alarm_check`` is where the
+    95% interval of ``false_alarm`` lies against ``p_fa``: ``"within"``, ``"above"`` (the
+    error model under-bounds the errors) or ``"below"`` (it over-bounds them), None
+    without fault-free epochs or ``p_fa``; ``false_alarm_statement`` says it in one line.
 
     ``summary["false_alarm_rate"]`` and :meth:`to_dict` give the flat form (rates as values,
     with ``*_k``, ``*_n`` and ``*_ci95`` beside them; None for missing values).
@@ -106,6 +118,10 @@ class Summary:
     baro_vpl_not_higher_share: float | None = None
     baro_vpl_lower_share: float | None = None
     baro_hpl_lower_share: float | None = None
+    p_fa: float | None = None
+    error_model: str | None = None
+    false_alarm_check: str | None = None
+    false_alarm_statement: str | None = None
     notes: tuple[str, ...] = field(default=())
 
     def to_dict(self) -> dict[str, Any]:
@@ -156,7 +172,10 @@ def _mean(x) -> float | None:
 
 
 def make_table(data: Measurements, truth: Truth, out: AlgorithmOutput) -> ResultTable:
-    """The per-epoch result table: algorithm output plus errors and truth."""
+    """The per-epoch result table: algorithm output plus errors and truth.
+
+    The table also keeps the run's ``p_fa`` and error model in its ``run_info`` dict,
+    which :func:`summarize` reads to set the alarm share against ``p_fa``."""
     names = np.array(data.sat_names + ("",), dtype=object)
     pos_true = truth.pos_rx_ecef_m
     err_b = ecef_to_enu(out.pos_before_ecef_m, pos_true)
@@ -207,7 +226,9 @@ def make_table(data: Measurements, truth: Truth, out: AlgorithmOutput) -> Result
                "used": data.used, "fault_bias_m": truth.fault_bias_m,
                "excluded": np.asarray(out.excluded)}
     per_sat.update({k: np.asarray(v) for k, v in out.per_sat.items()})
-    return ResultTable(cols, per_sat, data.sat_names)
+    table = ResultTable(cols, per_sat, data.sat_names)
+    table.run_info = {"p_fa": float(data.p_fa), "error_model": data.error_model}
+    return table
 
 
 def _names(mask, sat_names) -> np.ndarray:
@@ -236,8 +257,13 @@ def in_fault_memory(faulted, memory_epochs) -> np.ndarray:
     return ~faulted & (last >= 0) & (k - last < mem)
 
 
-def summarize(table: ResultTable, notes=()) -> Summary:
-    """The :class:`Summary` of a result table (``notes`` are passed through)."""
+def summarize(table: ResultTable, notes=(), *, p_fa: float | None = None,
+              error_model: str | None = None) -> Summary:
+    """The :class:`Summary` of a result table (``notes`` are passed through).
+
+    ``p_fa`` and ``error_model`` default to those :func:`make_table` kept in the table's
+    ``run_info``; with a ``p_fa`` the summary sets the fault-free alarm share against it
+    (:func:`false_alarm_check`) and adds the under-bounding note when it is above."""
     t = table["t_s"]
     status = table["status"]
     faulted = table["faulty_truth"] != ""
@@ -277,7 +303,53 @@ def summarize(table: ResultTable, notes=()) -> Summary:
     if "n_eff" in table:
         kw["n_eff_mean"] = _mean(table["n_eff"])
     kw.update(_summarize_pl(table))
-    return Summary(**kw, notes=tuple(notes))
+    info = getattr(table, "run_info", {})
+    p_fa = info.get("p_fa") if p_fa is None else p_fa
+    error_model = info.get("error_model") if error_model is None else error_model
+    notes = tuple(notes)
+    if p_fa is not None:
+        check, statement, note = false_alarm_check(kw["false_alarm"], p_fa, error_model)
+        kw.update(p_fa=float(p_fa), false_alarm_check=check, false_alarm_statement=statement)
+        if note:
+            notes += (note,)
+    return Summary(**kw, error_model=error_model, notes=notes)
+
+
+def _pct(x: float) -> str:
+    """A share in percent with 2 significant digits (0.1%, 0.0034%, 12%)."""
+    return f"{100 * x:.2g}%" if x > 0 else "0%"
+
+
+def false_alarm_check(rate: Rate, p_fa: float, error_model: str | None = None
+                      ) -> tuple[str | None, str | None, str | None]:
+    """The fault-free alarm share ``rate`` against ``p_fa``.
+
+    Returns ``(check, statement, note)``: ``check`` is ``"within"``, ``"above"`` or
+    ``"below"`` as the 95% Clopper-Pearson interval of ``rate`` contains ``p_fa`` or lies
+    above or below it; ``statement`` says it in one line; ``note`` is the warning that
+    the error model under-bounds the errors (``check == "above"``), else None. All None
+    when ``rate`` has no trials.
+
+    >>> check, statement, note = false_alarm_check(Rate(30, 1000), 1e-3, "elevation")
+    >>> statement
+    'fault-free alarm share 3% (30/1000; 95% CI 2%-4.3%): above p_fa 0.1%'
+    >>> note.split(":")[0]
+    'the error model under-bounds these errors (model elevation)'
+    """
+    if rate.n == 0:
+        return None, None, None
+    lo, hi = rate.ci95
+    check = "above" if lo > p_fa else ("below" if hi < p_fa else "within")
+    share = (f"fault-free alarm share {_pct(rate.value)} ({rate.k}/{rate.n}; 95% CI "
+             f"{_pct(lo)}-{_pct(hi)})")
+    where = {"within": f"p_fa {_pct(p_fa)} inside its interval",
+             "above": f"above p_fa {_pct(p_fa)}",
+             "below": f"below p_fa {_pct(p_fa)} (the error model over-bounds)"}[check]
+    note = None
+    if check == "above":
+        note = (f"the error model under-bounds these errors (model "
+                f"{error_model or 'not named'}): {share} {where}")
+    return check, f"{share}: {where}", note
 
 
 def _summarize_pl(table: ResultTable) -> dict[str, Any]:
