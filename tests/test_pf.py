@@ -312,3 +312,111 @@ def test_tau_per_satellite_set_when_asked():
     assert thr_e[six][0] == thr_f[0] and thr_e[five][0] != thr_e[six][0]
     with pytest.raises(ValueError, match="tau_sets"):
         run_scenario(sc.replace(tau_sets="sometimes"))
+
+
+# -- the clock proposal (pf.propose) -------------------------------------------------------
+
+def _clock_setup(n, sigma_m, dt=30.0):
+    """seed002's geometry, two systems (G02..G09 | G15, G19 read as a second system), a
+    common state with a drift; pseudoranges from a clock 25 m / 12 m off the prediction.
+    The position does not move (q_pos 0): the clock alone is under test."""
+    d, truth = simulate(load_scenario("seed002", duration_s=2, faults=[]))
+    model = pf.ProcessModel("static", 2, q_pos_mps=0.0, q_clk_mps=0.3, q_drift_mps2=0.2)
+    sys_idx = np.array([0, 0, 0, 1, 0, 1])
+    x = np.zeros((n, model.dim))
+    x[:, :3] = truth.pos_rx_ecef_m[0]
+    x[:, model.clocks] = [100.0, -40.0]
+    x[:, model.drift] = 2.0
+    sv = d.pos_sv_ecef_m[1]
+    clock = np.array([100.0 + 2.0 * dt + 25.0, -40.0 + 2.0 * dt + 12.0])
+    pr = (np.linalg.norm(sv - truth.pos_rx_ecef_m[0], axis=-1) + clock[sys_idx]
+          + Gaussian(sigma_m).sample(np.random.default_rng(5), (6,)))
+    return model, sys_idx, x, sv, pr, Gaussian(sigma_m), dt
+
+
+def test_clock_proposal_importance_ratios_give_back_the_prior():
+    """propose draws the offsets near the measurements; weighted by its ratios
+    p(x_k | x_k-1) / q, the draw is the state equation's: mean b + d dt, covariance
+    a I + beta 1 1^T (the moments of predict), E_q[ratio] = 1; the drift's law of total
+    variance holds as for predict; the ratios never exceed 1 / PROPOSAL_DEFENSIVE (the
+    defensive mixture). A 30 m noise keeps the proposal near the prior, so the importance
+    sample is large enough to check moments."""
+    n, v0 = 400_000, 0.3
+    model, sys_idx, x, sv, pr, noise, dt = _clock_setup(n, 30.0, dt=10.0)
+    mask = np.array([True, True, True, True, True, False])
+    y, log_ratio = pf.propose(x, dt, model, np.random.default_rng(2), sv, pr, mask, sys_idx,
+                              noise, drift_var=v0)
+    ratio = np.exp(log_ratio)
+    assert ratio.mean() == pytest.approx(1.0, abs=0.02)
+    assert log_ratio.max() <= -math.log(pf.PROPOSAL_DEFENSIVE) + 1e-12  # bounded weights
+    w = ratio / ratio.sum()
+    off = y[:, model.clocks]
+    mean = w @ off
+    np.testing.assert_allclose(mean, [100.0 + 2.0 * dt, -40.0 + 2.0 * dt], atol=0.15)
+    cov = (off - mean).T @ (w[:, None] * (off - mean))
+    a, beta = 0.3**2 * dt, v0 * dt**2 + 0.2**2 * dt**3 / 3
+    np.testing.assert_allclose(cov, a * np.eye(2) + beta, rtol=0.03)
+    assert off.mean(0)[0] - mean[0] > 1.0  # the unweighted draw looked at the data (+25 m)
+    v1 = pf.drift_step_var(model, v0, dt)
+    dm = w @ y[:, model.drift]
+    assert dm == pytest.approx(2.0, abs=0.02)
+    assert w @ (y[:, model.drift] - dm) ** 2 + v1 == pytest.approx(v0 + 0.2**2 * dt, rel=0.03)
+
+
+def test_clock_proposal_changes_the_monte_carlo_not_the_filter():
+    """Agreement: one update at a 30 s step (19 m of clock prediction spread, 1 m Gaussian
+    noise, the position known) is linear-Gaussian in the offsets and the drift; with the
+    clock proposal 20,000 particles give the Kalman posterior mean and the predictive
+    likelihood N(y; H m, H P H^T + R), where the bootstrap filter degenerates to one or
+    two particles even with 1,000,000."""
+    model, sys_idx, x, sv, pr, noise, dt = _clock_setup(1, 1.0)
+    v0 = 0.04
+    # Closed form: state (b_0, b_1, d), known offsets and a drift N(2, v0) at k - 1.
+    f = np.array([[1.0, 0.0, dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+    mean = f @ x[0, 3:]
+    cov = f @ np.diag([0.0, 0.0, v0]) @ f.T + model.clock_cov(dt)
+    h = np.zeros((6, 3))
+    h[np.arange(6), sys_idx] = 1.0
+    innov = pr - np.linalg.norm(sv - x[0, :3], axis=-1) - h @ mean
+    s_mat = h @ cov @ h.T + np.eye(6)
+    want = mean + cov @ h.T @ np.linalg.solve(s_mat, innov)
+    want_log_pred = stats.multivariate_normal(np.zeros(6), s_mat).logpdf(innov)
+    res = {}
+    for proposal, n in (("clock", 20_000), ("prior", 1_000_000)):
+        bank = pf.ParticleBank(np.repeat(x, n, 0), model, n_threshold=0, drift_var=v0,
+                               proposal=proposal)
+        res[proposal] = bank.step(dt, sv, pr, np.ones(6, bool), sys_idx, noise,
+                                  np.random.default_rng(3))
+    clock = res["clock"]
+    assert clock.n_eff > 0.25 * 20_000 and res["prior"].n_eff < 10
+    np.testing.assert_allclose(clock.estimate[3:], want, atol=0.02)
+    assert clock.log_pred == pytest.approx(want_log_pred, abs=0.02)
+    with pytest.raises(ValueError, match="proposal must be one of"):
+        pf.ParticleBank(x[None], model, proposal="optimal")
+
+
+def test_chunked_proposal_equals_one_batch(monkeypatch):
+    """Agreement: the proposal computed in chunks of filters draws the same particles with
+    the same ratios (every random number is drawn for the whole batch first), and its
+    likelihood is log_likelihood's. (States in m, ratios and likelihoods in nepers: the
+    same micro-unit tolerance.)"""
+    model, sys_idx, x, sv, pr, noise, dt = _clock_setup(50, 1.0)
+    x = np.broadcast_to(x, (3, 7) + x.shape).copy()
+    x[..., :3] += np.random.default_rng(1).normal(0, 2.0, x.shape[:-1] + (3,))
+    masks = np.vstack([np.ones(6, bool), ~np.eye(6, dtype=bool)])
+    args = (dt, model, None, sv, pr, masks, sys_idx, noise, 1.0, 1.0, 0.04)
+
+    def draw():
+        a = list(args)
+        a[2] = np.random.default_rng(7)
+        return pf._propose(x, *a)
+
+    whole = draw()
+    monkeypatch.setattr(pf, "_CHUNK_ELEMENTS", 700)  # two filters per chunk
+    chunked = draw()
+    one_um = 1e-6  # the ranges are computed about each chunk's first particle (1e-8 m)
+    for p, q in zip(whole, chunked, strict=True):
+        np.testing.assert_allclose(p, q, rtol=0, atol=one_um)
+    np.testing.assert_allclose(
+        whole[2], pf.log_likelihood(whole[0], sv, pr, masks, sys_idx, noise, model),
+        rtol=0, atol=one_um)

@@ -56,10 +56,13 @@ EQUATIONS = r"""
   drift), static: $r_k = r_{k-1} + w_k$, $c\,\delta t_{s,k} = c\,\delta t_{s,k-1}
   + c\,\dot{\delta t}\,\Delta t + w$; pseudorange
   $\rho_i = \lVert r - s_i \rVert + c\,\delta t + v_i$, $v_i$ heavy-tailed
-- Weights $w_k^{(i)} \propto w_{k-1}^{(i)}\, p(y_k \mid x_k^{(i)})$,
+- Particles drawn from a proposal $q$: the motion from the state equation, the clock
+  offsets near what the filter's own pseudoranges say (their median per system);
+  $r^{(i)} = p(x_k^{(i)} \mid x_{k-1}^{(i)}) / q(x_k^{(i)} \mid x_{k-1}^{(i)}, y_k)$
+- Weights $w_k^{(i)} \propto w_{k-1}^{(i)}\, p(y_k \mid x_k^{(i)})\, r^{(i)}$,
   $N_{eff} = 1 / \sum_i (w_k^{(i)})^2$, resample when $N_{eff} < 2N/3$
 - Predictive likelihood
-  $p(y_k \mid Y_{k-1}) \approx \sum_i w_{k-1}^{(i)}\, p(y_k \mid x_k^{(i)})$
+  $p(y_k \mid Y_{k-1}) \approx \sum_i w_{k-1}^{(i)}\, p(y_k \mid x_k^{(i)})\, r^{(i)}$
 - LLR $s_j(k) = \ln\, p_{aux,j}(y_k^{(-j)} \mid Y_{k-1}) - \ln\, p_{main}(y_k \mid Y_{k-1})$
 - Window $S_j(k) = \sum_{t=k-W+1}^{k} s_j(t)$, $\beta(k) = \max_j S_j(k)$
 - Alarm $\beta(k) > \tau$; faulty $\hat\jmath = \mathrm{arg\,max}_j\, S_j(k)$, excluded
