@@ -118,9 +118,13 @@ def run(args) -> int:
         raise ValueError(f"the dashboard needs its optional dependencies: pip install "
                          f"'raim-studio[app]' ({exc})") from None
     check_host(args.host)
-    if args.obs or args.nav:  # a recording: read it now, so file errors come before serving
+    if args.obs or args.android or args.nav:  # a recording (RINEX or a phone log): read
+        from raimcore.sky.recording import load_recording  # it now, errors before serving
+
         args.scenario = None if args.scenario == "default" else args.scenario
-        scenario = _recording_scenario(args, {})
+        scenario = _recording_scenario(args, {})  # --nav may be repeated: merged
+        load_recording(scenario.obs, scenario.nav, scenario.systems, scenario.signals,
+                       scenario.source)
     else:
         load_scenario(args.scenario)  # fail early, with the scenario error, before serving
         scenario = args.scenario

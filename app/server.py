@@ -86,7 +86,7 @@ class Dashboard:
         from raimcore.geometry import geodetic_to_ecef
 
         s = self.start_scenario
-        if s.source == "rinex":
+        if s.recorded:
             from raimcore.sky.recording import receiver_ecef_m
 
             rx = receiver_ecef_m(s)

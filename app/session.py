@@ -78,7 +78,8 @@ BATCH_GAP_S = 0.002
 #: How long closing a session waits for its running job (s).
 CLOSE_WAIT_S = 10.0
 #: The scenario keys the dashboard shows, with their labels (unit from the key).
-SCENARIO_CONTROLS = (("sigma_m", "Noise sigma"), ("noise_corr_s", "Noise correlation"),
+SCENARIO_CONTROLS = (("systems", "Systems"), ("sigma_m", "Noise sigma"),
+                     ("error_model", "Error model"), ("noise_corr_s", "Noise correlation"),
                      ("p_fa", "P_fa"), ("mask_deg", "Elevation mask"), ("seed", "Random seed"))
 #: The fault editor's keyed controls, with their labels.
 FAULT_CONTROLS = (("kind", "Type"), ("bias_m", "Bias"), ("rate_mps", "Ramp rate"),
@@ -334,17 +335,24 @@ class Session:
         with gui.add_folder("Time"):
             self.time = gui.add_slider("t (s)", 0.0, max(t_end, s.step_s), s.step_s, 0.0)
             self.play = gui.add_checkbox(
-                "Play", False, hint=f"Play the run: {PLAY_FPS:g} frames per second; "
+                "Play", False, hint=f"Play the run: up to {PLAY_FPS:g} frames per second, "
+                                    "as fast as this page draws them (shown below); "
                                     "Speed = simulated seconds per second")
             self.speed = gui.add_dropdown("Speed", PLAY_SPEEDS, initial_value="5x")
+            self.play_rate_md = gui.add_markdown("")
         with gui.add_folder("3D view legend", expand_by_default=False):
             self.legend_md = gui.add_markdown("")
-        with gui.add_folder("Recording (RINEX)", expand_by_default=s.source == "rinex"):
+        with gui.add_folder("Recording (RINEX or phone log)", expand_by_default=s.recorded):
             self.rec_obs = gui.add_text("Observation file", s.obs,
-                                        hint="path on the server, or upload below")
-            self.rec_nav = gui.add_text("Navigation file", s.nav)
+                                        hint="a RINEX observation file or an Android "
+                                             "GnssLogger raw log (told by its content): "
+                                             "path on the server, or upload below")
+            self.rec_nav = gui.add_text("Navigation files", "; ".join(s.nav),
+                                        hint="path(s) on the server; several (e.g. one "
+                                             "per system): separate them with ; (an "
+                                             "upload adds to the list)")
             self.rec_open = gui.add_button("Open recording")
-            self.rec_upload_obs = gui.add_upload_button("Upload observation file")
+            self.rec_upload_obs = gui.add_upload_button("Upload observation file or log")
             self.rec_upload_nav = gui.add_upload_button("Upload navigation file")
             self.rec_notes = gui.add_markdown("")
             self.rec_use_corr = gui.add_button(
@@ -580,8 +588,8 @@ class Session:
             self._syncing = True
             try:
                 self._show_preset(s)
-                if s.source == "rinex":
-                    self.rec_obs.value, self.rec_nav.value = str(s.obs), str(s.nav)
+                if s.recorded:
+                    self.rec_obs.value, self.rec_nav.value = str(s.obs), "; ".join(s.nav)
                 self.algorithm.value = s.algorithm
                 for name, ctl in self.controls.items():
                     ctl.show(getattr(s, name))
@@ -608,10 +616,21 @@ class Session:
         self.preset.value = self._preset_name = s.name
 
     # -- recordings ---------------------------------------------------------------------
-    def open_recording(self, obs: str, nav: str) -> None:
-        """Open a RINEX recording (paths on the server) and offer it as a preset."""
+    @staticmethod
+    def _nav_paths(text: str) -> list[str]:
+        """The navigation files of the Recording folder's field: paths separated by
+        ``;`` (shown joined by ``"; "``), blanks ignored."""
+        return [p.strip() for p in text.split(";") if p.strip()]
+
+    def open_recording(self, obs: str, nav: str | list[str]) -> None:
+        """Open a recording (paths on the server) and offer it as a preset: ``obs`` a RINEX
+        observation file or a phone's GnssLogger log, told by its content
+        (:func:`raimcore.sky.recording.observation_source`); ``nav`` a list of navigation
+        files, or one string of them separated by ``;``."""
         from raimcore.scenario import recording_scenario
 
+        if isinstance(nav, str):
+            nav = self._nav_paths(nav)
         scenario = recording_scenario(obs, nav, algorithm=self.scenario.algorithm)
         self.presets[scenario.name] = scenario  # re-opened: the file's new content
         self.open_scenario(scenario)
@@ -631,7 +650,7 @@ class Session:
         None when there is no recording or no finite positive fit."""
         from raimcore.measure import error_statistics
 
-        if self.result is None or self.result.scenario.source != "rinex":
+        if self.result is None or not self.result.scenario.recorded:
             return None
         try:
             corr = error_statistics(self.result.measurements, self.result.truth).corr_s
@@ -646,8 +665,8 @@ class Session:
         return value
 
     def _on_upload(self, button, field) -> None:
-        """Save an uploaded file in this session's temporary folder; open the recording
-        once both files are there."""
+        """Save an uploaded file in this session's temporary folder (a navigation file is
+        added to the list of them); open the recording once both kinds are there."""
         up = button.value
         if self._upload_dir is None:
             self._upload_dir = tempfile.mkdtemp(prefix="raim-upload-")
@@ -655,11 +674,18 @@ class Session:
         path.write_bytes(up.content)
         self._syncing = True
         try:
-            field.value = str(path)
+            if field is self.rec_nav:
+                have = self._nav_paths(field.value)
+                if str(path) not in have:
+                    have.append(str(path))
+                field.value = "; ".join(have)
+            else:
+                field.value = str(path)
         finally:
             self._syncing = False
-        if all(Path(f.value).is_file() for f in (self.rec_obs, self.rec_nav)
-               if f.value.strip()) and self.rec_obs.value.strip() and self.rec_nav.value.strip():
+        navs = self._nav_paths(self.rec_nav.value)
+        obs = self.rec_obs.value.strip()
+        if obs and navs and all(Path(p).is_file() for p in (obs, *navs)):
             self._on_open_recording()
 
     # -- faults -------------------------------------------------------------------------
@@ -856,7 +882,7 @@ class Session:
                                f"{1e3 * tm.total_s:.0f} ms")
         self.rec_notes.content = "".join(f"- {html.escape(n)}\n"
                                          for n in result.summary.notes)
-        self.rec_use_corr.visible = scenario.source == "rinex"
+        self.rec_use_corr.visible = scenario.recorded
         self._refresh_fault_sats()
         self._refresh_per_sat_pick()
         self.client.flush()
@@ -986,14 +1012,32 @@ class Session:
             self._play_stop.set()
 
     def _play_loop(self) -> None:
-        period = 1.0 / PLAY_FPS
-        t_next_frame = time.monotonic() + period
-        while not self._play_stop.wait(max(t_next_frame - time.monotonic(), 0.0)):
-            t_next_frame = max(t_next_frame + period, time.monotonic())
-            speed = float(self.speed.value.rstrip("x"))
-            t_max = float(self.time.max)
-            t_next = float(self.time.value) + speed / PLAY_FPS
-            self.time.value = 0.0 if t_next > t_max else t_next
+        """Play: simulated time advances by Speed x the real time elapsed, in frames sent
+        at a rate that follows what the page paints (a page that draws slower than
+        PLAY_FPS gets fewer frames, not a backlog it would drop). Once a second the page
+        says how many updates it painted; that rate is shown under the Play controls."""
+        rate = PLAY_FPS
+        t_play = float(self.time.value)
+        last = t_check = time.monotonic()
+        painted0 = self.page.painted_count(timeout_s=1.0)
+        while not self._play_stop.is_set():
+            now = time.monotonic()
+            t_play += float(self.speed.value.rstrip("x")) * (now - last)
+            last = now
+            if t_play > float(self.time.max):
+                t_play = 0.0
+            self.time.value = t_play
+            if now - t_check >= 1.0:
+                painted = self.page.painted_count(timeout_s=1.0)
+                if painted is not None and painted0 is not None:
+                    drawn = (painted - painted0) / (time.monotonic() - t_check)
+                    rate = min(PLAY_FPS, max(1.0, 1.2 * drawn))
+                    self.play_rate_md.content = (
+                        f"Playing at {drawn:.1f} frames/s (at most {PLAY_FPS:g}: as fast "
+                        "as this page paints)")
+                painted0, t_check = painted, time.monotonic()
+            self._play_stop.wait(max(now + 1.0 / rate - time.monotonic(), 0.0))
+        self.play_rate_md.content = ""
 
     # -- export -------------------------------------------------------------------------
     def table_csv(self) -> bytes:
@@ -1063,10 +1107,10 @@ class Session:
 
 def scenario_report_markdown(scenario: Scenario) -> str:
     """The report beside a built-in scenario (``raim show NAME``), or a line saying there
-    is none; a recording points to the real-data report."""
+    is none; a recording points to the real-data report (a phone log: the phone report)."""
     from raimcore.scenario import scenario_report
 
-    name = "recordings" if scenario.source == "rinex" else scenario.name
+    name = {"rinex": "recordings", "android": "android"}.get(scenario.source, scenario.name)
     report = scenario_report(name)
     if report is None:
         return (f"No report for *{html.escape(scenario.name)}*: the built-in scenarios have "

@@ -23,12 +23,13 @@ def _add_list(sub):
 
 def _cmd_list(args) -> int:
     from . import algorithms
-    from .scenario import list_scenarios, scenario_report
+    from .scenario import list_scenarios, report_names, scenario_report
 
     print("Scenarios (raim run NAME; raim show NAME for a report):")
     for name, desc in list_scenarios().items():
         mark = " [report]" if scenario_report(name) else ""
         print(f"  {name:<18} {desc}{mark}")
+    print(f"\nReports on real data (raim show NAME): {', '.join(report_names())}")
     print("\nAlgorithms (--algorithm A; raim keys A for their options):")
     for name in algorithms.names():
         spec = algorithms.get(name)
@@ -86,8 +87,11 @@ def _add_show(sub):
 
 
 def _cmd_show(args) -> int:
-    from .scenario import _scenario_text, scenario_report
+    from .scenario import _scenario_text, report_names, scenario_report
 
+    if args.scenario in report_names():  # a report with no scenario file
+        print(scenario_report(args.scenario).rstrip())
+        return 0
     text, where = _scenario_text(args.scenario)
     report = scenario_report(args.scenario) if where.startswith("scenario ") else None
     print(report.rstrip() if report else f"# {where}\n\n(no report)")
@@ -102,6 +106,15 @@ examples:
   raim run default --fault G10,step,80,100,200 --fault G05,ramp,1.5,300
   raim run my_scenario.toml --algorithm parity --seed 7 --out result.json
   raim run --obs STATION.rnx --nav BRDC.rnx --fault G05,ramp,2,600   (a real recording)
+  raim run --obs STATION.crx.gz --nav STATION_GN.rnx --nav STATION_EN.rnx.gz
+  raim run --android gnss_log.txt --nav BRDC.rnx --set truth_ecef_m='[X, Y, Z]'
+
+A recording (--obs with one or more --nav) runs every system the observation file has of
+GPS, Galileo, GLONASS and BeiDou (--set systems='["GPS","GAL"]' chooses), one receiver
+clock per system; the navigation files are merged (e.g. an IGS station's per-system _GN,
+_EN, _CN and _RN files). Files may be compressed: .gz, .Z, .zip, Hatanaka .crx / .yyd.
+A phone's Android GnssLogger raw log (--android instead of --obs) runs the same way, with
+the measured error model; it has no header position: give truth_ecef_m.
 
 --set takes any scenario key or option of the chosen algorithm ('raim keys' lists them,
 with units and allowed values); values are TOML literals:
@@ -128,35 +141,74 @@ def _add_scenario_args(p):
     """The arguments that choose and modify a scenario (shared by run and compare)."""
     p.add_argument("scenario", nargs="?",
                    help="built-in scenario name (see 'raim list') or a .toml file; optional "
-                        "with --obs")
+                        "with --obs or --android")
     _add_recording_args(p)
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario key or algorithm option (repeatable)")
+    p.add_argument("--error-model", metavar="NAME", choices=_SchemaChoices("error_model"),
+                   help="the pseudorange error model, one of %(choices)s (--set "
+                        "error_model=NAME; 'raim keys scenario' says what each is)")
     p.add_argument("--fault", dest="faults", action="append", default=[], metavar="SPEC",
                    help="inject a fault, replacing the scenario's (repeatable; see below)")
     p.add_argument("--seed", type=int, help="random seed (same seed, same result)")
 
 
+class _SchemaChoices:
+    """The choices of a scenario key (:data:`raimcore.scenario.SCENARIO_KEYS`), looked up
+    when argparse first needs them (a bad value, ``--help``): building the parser stays
+    free of the scenario module's imports, and the choices are the schema's."""
+
+    def __init__(self, key: str):
+        self.key = key
+
+    def _choices(self) -> tuple[str, ...]:
+        from .scenario import SCENARIO_KEYS
+
+        return tuple(SCENARIO_KEYS[self.key].choices)
+
+    def __iter__(self):
+        return iter(self._choices())
+
+    def __contains__(self, value) -> bool:
+        return value in self._choices()
+
+
 def _add_recording_args(p):
-    p.add_argument("--obs", help="RINEX 2.11/3.0x observation file: run on this recording")
-    p.add_argument("--nav", help="RINEX navigation file (GPS and/or BeiDou) for --obs")
+    p.add_argument("--obs", help="RINEX 2.11/3.0x observation file: run on this recording "
+                   "(plain, .gz, .Z, .zip or Hatanaka .crx/.yyd)")
+    p.add_argument("--android", metavar="LOG",
+                   help="Android GnssLogger raw log (format 1.4 or later, Raw records): "
+                        "run on this phone recording instead of --obs")
+    p.add_argument("--nav", action="append", metavar="NAV",
+                   help="RINEX 2/3/4 navigation file for --obs or --android (GPS, Galileo, "
+                        "GLONASS, BeiDou); repeatable: several files are merged")
 
 
 def _recording_scenario(args, over: dict):
-    """The scenario of ``--obs/--nav`` (with a scenario file's keys when one is given),
-    or None without ``--obs``."""
-    if not args.obs and not args.nav:
+    """The scenario of ``--obs/--nav`` or ``--android/--nav`` (with a scenario file's keys
+    when one is given), or None without them. ``args.nav`` is the list of ``--nav``
+    files."""
+    android = getattr(args, "android", None)
+    if args.obs and android:
+        raise ValueError("--obs and --android exclude each other: --obs takes a RINEX "
+                         "observation file, --android a phone's GnssLogger log")
+    obs, opt = (android, "--android") if android else (args.obs, "--obs")
+    if not obs and not args.nav:
         if not args.scenario:
-            raise ValueError("give a scenario (see 'raim list') or --obs FILE --nav FILE")
+            raise ValueError("give a scenario (see 'raim list'), --obs FILE --nav FILE or "
+                             "--android LOG --nav FILE")
         return None
-    if not (args.obs and args.nav):
-        raise ValueError("--obs and --nav go together (observation and navigation file)")
+    if not obs:
+        raise ValueError("--nav needs --obs (a RINEX observation file) or --android (a "
+                         "GnssLogger log)")
+    if not args.nav:
+        raise ValueError(f"{opt} and --nav go together (observation and navigation file)")
     from .scenario import load_scenario, recording_scenario
 
-    rec = {"source": "rinex", "obs": args.obs, "nav": args.nav}
+    rec = {"source": "android" if android else "rinex", "obs": obs, "nav": args.nav}
     if args.scenario:
-        return load_scenario(args.scenario, **rec, **over)
-    return recording_scenario(args.obs, args.nav, **over)
+        return load_scenario(args.scenario, **{**rec, **over})
+    return recording_scenario(obs, args.nav, **{"source": rec["source"], **over})
 
 
 def _overrides(args) -> dict:
@@ -171,6 +223,8 @@ def _overrides(args) -> dict:
         over[key.strip()] = parse_value(val.strip())
     if args.faults:
         over["faults"] = [parse_fault(f) for f in args.faults]
+    if args.error_model:
+        over["error_model"] = args.error_model
     if args.algorithm:
         over["algorithm"] = args.algorithm
     if args.seed is not None:
@@ -224,15 +278,19 @@ def format_summary(result) -> str:
         f"{f.sat} {f.kind} " + (f"{f.bias_m:g} m" if f.kind == "step" else f"{f.rate_mps:g} m/s")
         + f" from t={f.t0_s:g} s" + (f" to {f.t1_s:g} s" if math.isfinite(f.t1_s) else "")
         for f in s.faults) or "none"
+    m = result.measurements
     lines = [
         f"scenario {s.name}: algorithm {s.algorithm}, {sm.epochs} epochs, "
-        f"sigma {s.sigma_m:g} m ({s.noise}"
+        f"{'+'.join(m.systems)} ({len(m.sat_names)} satellites), sigma {s.sigma_m:g} m "
+        f"({s.noise}"
         + (f", correlated over {s.noise_corr_s:g} s" if s.noise_corr_s > 0 else "")
         + f"), p_fa {s.p_fa:g}, faults: {faults}",
         f"  unavailable epochs (no position, in no rate): {sm.unavailable_epochs}"
         + (f"; detect-only epochs (one redundant measurement: no isolation): "
            f"{sm.detect_only_epochs}" if sm.detect_only_epochs else ""),
-        f"  false-alarm rate on fault-free epochs: {sm.false_alarm}",
+        f"  false-alarm rate on fault-free epochs: {sm.false_alarm}"
+        + (f"; {sm.false_alarm_statement.rsplit(': ', 1)[1]} (error model {sm.error_model})"
+           if sm.false_alarm_statement else ""),
     ]
     if sm.faulted_epochs:
         first = sm.first_alarm_t_s
@@ -303,6 +361,7 @@ examples:
   raim compare seed004-multi --algorithms gf,rs,qv,parity --set max_exclusions=3
   raim compare default --fault G10,step,60,100 --seeds 10
   raim compare --obs STATION.rnx --nav BRDC.rnx --fault G05,ramp,2,600
+  raim compare --android gnss_log.txt --nav BRDC.rnx --error-model elevation
 
 --fault and --set are as in 'raim run' (see 'raim run --help').
 

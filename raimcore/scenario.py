@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import tomllib
 from dataclasses import dataclass, fields
 from importlib import resources
@@ -25,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from . import algorithms
+from .measure.error_models import ERROR_MODELS
 from .measure.faults import Fault
 from .measure.noise import NOISE_KINDS
 from .schema import (
@@ -39,13 +41,15 @@ from .schema import (
 from .sky.trajectories import TRAJECTORY_KINDS
 
 __all__ = ["Scenario", "Restrict", "load_scenario", "list_scenarios", "from_dict",
-           "parse_value", "scenario_keys", "all_keys", "scenario_report", "recording_scenario",
-           "SYSTEMS", "SOURCES"]
+           "parse_value", "scenario_keys", "all_keys", "scenario_report", "report_names",
+           "recording_scenario", "SYSTEMS", "SOURCES"]
 
-#: Satellite systems and the first letter of their satellites' names.
-SYSTEMS = {"GPS": "G", "BDS": "C"}
-#: Where the pseudoranges come from: simulated, or a RINEX recording (raimcore.sky.recording).
-SOURCES = ("sim", "rinex")
+#: Satellite systems and the first letter of their satellites' names (RINEX 3): GPS,
+#: BeiDou, Galileo, GLONASS. Each system has its own receiver clock.
+SYSTEMS = {"GPS": "G", "BDS": "C", "GAL": "E", "GLO": "R"}
+#: Where the pseudoranges come from: simulated, a RINEX recording or an Android GnssLogger
+#: log (both raimcore.sky.recording: one chain, two readers of ``obs``).
+SOURCES = ("sim", "rinex", "android")
 #: Longest run, in epochs (duration_s / step_s).
 MAX_EPOCHS = 2_000_000
 #: Smallest noise sigma (m) of a scenario: no pseudorange or altimeter is known better than
@@ -156,6 +160,26 @@ def _parse_times(name, value):
                         for i, v in enumerate(value)))
 
 
+def _parse_paths(name, value):
+    """A file path or a list of file paths -> a tuple of paths; ``""`` and ``[]`` (none
+    given) -> ``()``. Whether the files exist is checked when they are read."""
+    if isinstance(value, str | os.PathLike):
+        value = [value] if os.fspath(value) else []
+    if not isinstance(value, list | tuple):
+        raise SchemaError(f"{name} must be a file path or a list of file paths, e.g. "
+                          f"[\"A_GN.rnx\", \"A_EN.rnx\"], got {value!r}"[:200])
+    out = []
+    for i, v in enumerate(value):
+        v = os.fspath(v) if isinstance(v, os.PathLike) else v
+        if not isinstance(v, str) or not v.strip():
+            raise SchemaError(f"{name}[{i}] must be a file path, got {v!r}"[:200])
+        if v in out:
+            raise SchemaError(f"{name}[{i}] lists {v!r} a second time (it is {name}"
+                              f"[{out.index(v)}])")
+        out.append(v)
+    return tuple(out)
+
+
 def _parse_algorithm(name, value):
     names = algorithms.names()
     if not isinstance(value, str) or value not in names:
@@ -166,31 +190,28 @@ def _parse_algorithm(name, value):
 def _parse_path_or_nominal(name, value):
     v = coerce_str(name, value)
     if not v.strip():
-        raise SchemaError(f"{name} must be \"nominal\" or the path of a YUMA almanac")
+        raise SchemaError(f"{name} must be \"nominal\" or the path of a YUMA or SEM almanac")
     if v != "nominal" and not Path(v).is_file():
-        raise SchemaError(f"{name} must be \"nominal\" or the path of a YUMA almanac file; "
-                          f"{v!r} is not a file")
+        raise SchemaError(f"{name} must be \"nominal\" or the path of a YUMA or SEM almanac "
+                          f"file; {v!r} is not a file")
     return v
 
 
 def _constellation_names(s) -> tuple[tuple[str, ...], str]:
     """The satellite names of ``s``'s constellation in its systems (before ``sats`` and
-    ``rename``) and how to call that constellation in a message. A YUMA almanac is read
-    (and checked) here, so that its errors name the key ``constellation``."""
-    from .sky.constellations import builtin, read_yuma_cached
+    ``rename``) and how to call that constellation in a message. A YUMA or SEM almanac is
+    read (and checked, its system told by its orbits) here, so that its errors name the key
+    ``constellation``."""
+    from .sky.constellations import builtin
+    from .sky.simulated import almanac_constellation
 
     if s.constellation == "nominal":
         return builtin(s.systems).names, f"nominal {'+'.join(s.systems)} constellation"
     try:
-        const = read_yuma_cached(s.constellation)
+        const = almanac_constellation(s.constellation, s.systems)
     except ValueError as exc:
         raise SchemaError(f"constellation: {exc}") from None
-    names = tuple(n for n, sy in zip(const.names, const.systems, strict=True)
-                  if sy in s.systems)
-    if not names:
-        raise SchemaError(f"constellation {s.constellation!r} is a GPS almanac: it has no "
-                          f"satellite of systems {', '.join(s.systems)} (add \"GPS\")")
-    return names, f"almanac {s.constellation}"
+    return const.names, f"almanac {s.constellation}"
 
 
 @dataclass(frozen=True)
@@ -214,7 +235,8 @@ class Scenario:
     description: str = key("", "one-line description", group="scenario")
     systems: tuple[str, ...] = key(("GPS",), "satellite systems to use", kind="choices",
                                    choices=tuple(SYSTEMS), group="constellation")
-    constellation: str = key("nominal", '"nominal" or the path of a YUMA almanac (GPS)',
+    constellation: str = key("nominal", '"nominal" or the path of a YUMA or SEM almanac '
+                             '(GPS, Galileo or BeiDou: told by its orbits)',
                              kind="custom", parse=_parse_path_or_nominal,
                              allowed_text='"nominal" or a file path', group="constellation")
     sats: tuple[str, ...] = key((), "satellites to use (empty: all of the systems)",
@@ -262,9 +284,10 @@ class Scenario:
         parse=_parse_times, allowed_text="list of times in [0, 1e9]", group="receiver")
     mask_deg: float = key(5.0, "elevation mask", unit="deg", lo=-10.0, hi=89.0,
                           ui_lo=0.0, ui_hi=40.0, ui_step=1.0, group="measurements")
-    sigma_m: float = key(33.0, "pseudorange noise 1-sigma (a recording: assumed, at the "
-                         "zenith)", unit="m", lo=SIGMA_MIN_M, hi=1.0e4, ui_lo=0.1,
-                         ui_hi=50.0, ui_step=0.1, group="measurements")
+    sigma_m: float = key(33.0, "pseudorange noise 1-sigma: everywhere (error_model "
+                         "uniform) or at the zenith (elevation; a recording's auto)",
+                         unit="m", lo=SIGMA_MIN_M, hi=1.0e4, ui_lo=0.1, ui_hi=50.0,
+                         ui_step=0.1, group="measurements")
     noise: str = key("gaussian", "noise distribution", kind="choice", choices=NOISE_KINDS,
                      group="measurements")
     mixture_eps: float = key(0.1, "outlier share of the Gaussian mixture", lo=0.0,
@@ -276,6 +299,12 @@ class Scenario:
     noise_corr_s: float = key(0.0, "noise correlation time (first-order Gauss-Markov); "
                               "0 = white", unit="s", lo=0.0, hi=1.0e6, ui_lo=0.0,
                               ui_hi=3600.0, ui_step=5.0, group="measurements")
+    error_model: str = key("auto", "pseudorange 1-sigma per satellite, assumed by the "
+                           "algorithms and drawn by a simulation: uniform (sigma_m), "
+                           "elevation (sigma_m at the zenith), rtklib, broadcast (URA + "
+                           "tropo + multipath), measured (fitted on a recording); auto: "
+                           "uniform simulated, elevation on a recording", kind="choice",
+                           choices=ERROR_MODELS, group="measurements")
     faults: tuple[Fault, ...] = key((), "injected faults: [[faults]] tables (sat, kind "
                                     "step|ramp, t0_s, t1_s, bias_m | rate_mps)",
                                     kind="custom", parse=_parse_faults,
@@ -303,8 +332,12 @@ class Scenario:
                     group="integrity")
     source: str = key("sim", "where the pseudoranges come from", kind="choice",
                       choices=SOURCES, group="recording")
-    obs: str = key("", "RINEX observation file (source rinex)", group="recording")
-    nav: str = key("", "RINEX navigation file (source rinex)", group="recording")
+    obs: str = key("", "observation file: RINEX (source rinex) or an Android GnssLogger "
+                   "raw log (source android)", group="recording")
+    nav: tuple[str, ...] = key((), "RINEX navigation file(s) of a recording: a path or a "
+                               "list of paths (e.g. one per system), merged", kind="custom",
+                               parse=_parse_paths, allowed_text="path or list of paths",
+                               group="recording")
     signals: tuple[str, ...] = key((), "observation codes to use, e.g. [\"C1C\", \"C2I\"] "
                                    "(empty: the defaults)", kind="strings",
                                    group="recording")
@@ -348,6 +381,11 @@ class Scenario:
                     d.pop(name, None)
         d.update(changes)
         return from_dict(d, notes=self.notes)
+
+    @property
+    def recorded(self) -> bool:
+        """True when the pseudoranges are recorded (``source`` "rinex" or "android")."""
+        return self.source != "sim"
 
     def with_faults(self, *faults: Fault) -> Scenario:
         return dataclasses.replace(self, faults=tuple(faults))
@@ -412,13 +450,19 @@ def _check_together(s: Scenario) -> None:
     if s.duration_s / s.step_s > MAX_EPOCHS:
         raise SchemaError(f"duration_s / step_s must be at most {MAX_EPOCHS:,} epochs, got "
                           f"{s.duration_s:g} / {s.step_s:g}")
-    if s.source == "rinex" and not (s.obs and s.nav):
-        raise SchemaError("source \"rinex\" needs obs and nav (RINEX observation and "
-                          "navigation file paths)")
+    if s.recorded and not (s.obs and s.nav):
+        what = "a GnssLogger log" if s.source == "android" else "a RINEX observation file"
+        raise SchemaError(f"source \"{s.source}\" needs obs and nav ({what} and RINEX "
+                          "navigation file paths)" + ("; nav names no file" if s.obs
+                                                      else ""))
     if s.source == "sim" and (s.obs or s.nav or s.signals or s.truth_ecef_m):
         used = [k for k in ("obs", "nav", "signals", "truth_ecef_m") if getattr(s, k)]
-        raise SchemaError(f"{', '.join(used)} apply to recordings only (source = \"rinex\"); "
-                          f"this scenario is simulated")
+        raise SchemaError(f"{', '.join(used)} apply to recordings only (source = \"rinex\" "
+                          f"or \"android\"); this scenario is simulated")
+    if s.source == "sim" and s.error_model == "measured":
+        raise SchemaError("error_model \"measured\" fits the errors of a recording (source "
+                          "= \"rinex\" or \"android\"); a simulated scenario has none: "
+                          "choose auto, uniform, elevation, rtklib or broadcast")
     letters = {SYSTEMS[x] for x in s.systems}
     for where, names in (("sats", s.sats), ("faults", [f.sat for f in s.faults]),
                          ("restrict", [x for r in s.restrict for x in r.sats])):
@@ -521,14 +565,35 @@ def list_scenarios() -> dict[str, str]:
 
 
 def recording_scenario(obs, nav, **overrides) -> Scenario:
-    """A :class:`Scenario` for a RINEX recording with real-data defaults: GPS and BDS (those
-    present), the whole recording at its own interval, ``sigma_m`` 1 m, a 10-degree mask;
-    ``overrides`` are scenario keys."""
+    """A :class:`Scenario` for a recording with real-data defaults: every system the
+    observation file has (of GPS, BDS, GAL, GLO), the whole recording at its own interval,
+    a 10-degree mask and ``sigma_m`` 1 m (a RINEX file of a geodetic receiver), or
+    ``error_model`` "measured" and ``sigma_m`` 5 m (a phone's GnssLogger log); ``overrides``
+    are scenario keys.
+
+    ``obs`` is a RINEX observation file or a GnssLogger log (``source`` "rinex" or
+    "android": from ``overrides``, else told by the file's content), ``nav`` a navigation
+    file or a list of them (merged, e.g. an IGS station's ``_GN``, ``_EN``, ``_CN`` and
+    ``_RN`` files); plain or compressed (gzip, ``.Z``, zip, Hatanaka ``.crx``)."""
     from .sky.recording import recording_keys
 
-    d = {**recording_keys(obs), "nav": str(nav)}
+    source = overrides.get("source")
+    if source is not None:
+        SCENARIO_KEYS["source"].coerce(source)  # the key's own message for a bad one
+        if source == "sim":
+            raise SchemaError("source \"sim\" is not a recording: a recording scenario "
+                              "takes source \"rinex\" or \"android\"")
+    d = {**recording_keys(obs, source), "nav": nav}  # nav: a path or a list of paths
     d.update(overrides)
     return from_dict(d)
+
+
+def report_names() -> list[str]:
+    """The reports shipped without a scenario file (``scenarios/NAME.md`` with no
+    ``NAME.toml``: the real-data reports ``recordings`` and ``android``)."""
+    d = _scenario_dir()
+    return sorted(e.name[:-3] for e in d.iterdir() if e.name.endswith(".md")
+                  and not (d / f"{e.name[:-3]}.toml").is_file())
 
 
 def scenario_report(name: str) -> str | None:

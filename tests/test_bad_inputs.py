@@ -32,8 +32,9 @@ import raimcore.cli as cli
 from raimcore.cli import main
 from raimcore.measure.faults import Fault
 from raimcore.pipeline import compare_algorithms, run_scenario, simulate
-from raimcore.scenario import Scenario, from_dict, load_scenario
+from raimcore.scenario import Scenario, from_dict, load_scenario, recording_scenario
 from raimcore.sky.constellations import read_yuma
+from raimcore.sky.recording import load_recording
 from raimcore.sky.rinex import read_nav, read_obs
 from raimcore.studies.montecarlo import Study, parse_algorithm
 
@@ -173,6 +174,35 @@ def test_obs_and_nav_of_different_days_is_refused_with_a_message(tmp_path):
     assert_one_line_value_error(exc, NO_EPHEMERIS)
 
 
+#: A GnssLogger 1.4 log in the test tree (tests/test_android.py).
+PHONE_SNIPPET = Path(__file__).parent / "data" / "android" / "gnsslogger_v1.4.txt"
+
+
+@pytest.mark.parametrize("command", ["run", "compare", "dashboard"])
+@pytest.mark.parametrize("option, kind, words", [
+    ("--obs", "log", ["is an Android GnssLogger log, not a RINEX observation file",
+                      "give it with --android"]),
+    ("--android", "obs", ["is a RINEX observation file, not an Android GnssLogger log",
+                          "give it with --obs"]),
+    ("--android", "nav", ["is a RINEX navigation", "give it with --nav"]),
+], ids=["log-to-obs", "rinex-obs-to-android", "rinex-nav-to-android"])
+def test_a_file_given_to_the_wrong_option_names_the_right_one(tmp_path, command, option,
+                                                                kind, words):
+    """Told by the content, whatever the name (the log is gzipped and named .rnx)."""
+    import gzip
+
+    if command == "dashboard":
+        pytest.importorskip("viser")
+    nav = nav_v2(tmp_path / "n.rnx")
+    log = tmp_path / "phone.rnx"
+    log.write_bytes(gzip.compress(PHONE_SNIPPET.read_bytes()))
+    path = {"log": log, "obs": obs_v2(tmp_path / "o.21o"), "nav": nav}[kind]
+    extra = ["--port", "0"] if command == "dashboard" else []
+    rc, out, err = run_cli([command, option, path, "--nav", nav, *extra])
+    assert_one_line_error(rc, err, str(path), *words)
+    assert out == ""
+
+
 def test_real_obs_and_nav_of_different_days(shared_data):
     rc, _, err = run_cli(["run", "--obs", shared_data / ESBC_OBS, "--nav",
                           shared_data / SLAC_NAV])
@@ -243,8 +273,17 @@ CLI_CASES = [
     ("unknown-scenario", ["run", "nope"], ["scenario", "nope"]),
     ("missing-toml", ["run", "/no/such/file.toml"], ["/no/such/file.toml", "does not exist"]),
     ("obs-without-nav", ["run", "--obs", "x.rnx"], ["--obs", "--nav"]),
+    ("android-without-nav", ["run", "--android", "log.txt"], ["--android", "--nav"]),
+    ("nav-without-obs", ["run", "--nav", "n.rnx"], ["--nav", "--obs", "--android"]),
+    ("obs-and-android", ["run", "--obs", "o.rnx", "--android", "log.txt", "--nav", "n.rnx"],
+     ["--obs", "--android", "exclude each other"]),
+    ("missing-phone-log", ["run", "--android", "/no/log.txt", "--nav", "/no/nav.rnx"],
+     ["obs", "/no/log.txt", "does not exist"]),
+    ("error-model-measured-on-a-simulation", ["run", "default", "--error-model", "measured"],
+     ["error_model", "measured", "recording"]),
     ("missing-rinex", ["run", "--obs", "/no/obs.rnx", "--nav", "/no/nav.rnx"],
      ["obs", "/no/obs.rnx", "does not exist"]),
+    ("set-nav-entry-number", ["run", "default", "--set", 'nav=["a.rnx", 5]'], ["nav[1]", "5"]),
     ("out-suffix", ["run", "default", "--out", "x.txt"], ["--out", "x.txt"]),
     ("bad-algorithm", ["run", "default", "--algorithm", "nope"], ["algorithm", "nope"]),
     ("seed-not-an-integer", ["run", "default", "--seed", "abc"], ["--seed", "abc"]),
@@ -296,6 +335,8 @@ TOML_CASES = [
     ("ramp-with-a-bias", '[[faults]]\nsat = "G10"\nkind = "ramp"\nbias_m = 3',
      ["faults[0]", "rate_mps"]),
     ("unknown-fault-key", '[[faults]]\nsat = "G10"\nbias = 3', ["faults[0]", "bias"]),
+    ("nav-a-number", "nav = 5", ["nav", "5"]),
+    ("nav-entry-a-number", 'nav = ["a.rnx", 5]', ["nav[1]", "5"]),
 ]
 
 
@@ -315,6 +356,19 @@ def test_truth_at_the_earth_centre_on_a_recording_is_refused(tmp_path):
     obs, nav = obs_v2(tmp_path / "o.rnx"), nav_v2(tmp_path / "n.rnx")
     rc, _, err = run_cli(["run", "--obs", obs, "--nav", nav, "--set", "truth_ecef_m=[0,0,0]"])
     assert_one_line_error(rc, err, "truth_ecef_m", "0.0 km")
+
+
+def test_missing_navigation_file_in_the_list_is_named(tmp_path):
+    obs, nav = obs_v3(tmp_path / "o.rnx"), nav_v2(tmp_path / "n.rnx")
+    missing = tmp_path / "no_such_EN.rnx"
+    rc, out, err = run_cli(["run", "--obs", obs, "--nav", nav, "--nav", missing])
+    assert_one_line_error(rc, err, "nav[1]", str(missing), "does not exist")
+    assert out == ""
+    pytest.importorskip("viser")
+    pytest.importorskip("plotly")
+    rc, out, err = run_cli(["dashboard", "--port", "0", "--obs", obs, "--nav", nav, "--nav",
+                            missing])  # refused before serving
+    assert_one_line_error(rc, err, "nav[1]", str(missing), "does not exist")
 
 
 def test_console_script_refuses_bad_input_in_one_line():
@@ -341,7 +395,7 @@ API_CASES = [
     ("Scenario-clock-drift-inf", lambda: Scenario(clock_drift_mps=math.inf),
      ["clock_drift_mps", "inf"]),
     ("Scenario-systems-5", lambda: Scenario(systems=5), ["systems"]),
-    ("Scenario-systems-unknown", lambda: Scenario(systems=["GLO"]), ["systems[0]", "GLO"]),
+    ("Scenario-systems-unknown", lambda: Scenario(systems=["QZS"]), ["systems[0]", "QZS"]),
     ("Scenario-sats-string", lambda: Scenario(sats="G01"), ["sats", "'G01'"]),
     ("Scenario-sats-number", lambda: Scenario(sats=["G01", 7]), ["sats[1]", "7"]),
     ("Scenario-rename-5", lambda: Scenario(rename=5), ["rename"]),
@@ -363,6 +417,25 @@ API_CASES = [
      lambda: Scenario(source="rinex", obs="o.rnx", nav="n.rnx", truth_ecef_m=[1e6, 2e6]),
      ["truth_ecef_m", "2 values"]),
     ("Scenario-rinex-without-files", lambda: Scenario(source="rinex"), ["obs", "nav"]),
+    ("Scenario-android-without-files", lambda: Scenario(source="android"),
+     ["android", "obs", "GnssLogger", "nav"]),
+    ("Scenario-source-unknown", lambda: Scenario(source="phone"), ["source", "phone",
+                                                                   "android"]),
+    ("recording_scenario-source-sim", lambda: recording_scenario(__file__, [__file__],
+                                                                 source="sim"),
+     ["source", "sim", "rinex", "android"]),
+    ("load_recording-source-unknown",
+     lambda: load_recording(__file__, [__file__], source="sp3"), ["source", "sp3"]),
+    ("Scenario-nav-empty-list", lambda: Scenario(source="rinex", obs="o.rnx", nav=[]),
+     ["nav", "no file"]),
+    ("Scenario-nav-entry-number", lambda: Scenario(source="rinex", obs="o.rnx",
+                                                   nav=["n.rnx", 5]), ["nav[1]", "5"]),
+    ("Scenario-nav-twice", lambda: Scenario(source="rinex", obs="o.rnx",
+                                            nav=["n.rnx", "n.rnx"]), ["nav[1]", "n.rnx"]),
+    ("load_recording-missing-nav-1",
+     lambda: load_recording(__file__, [__file__, "/no/such/nav.rnx"]),
+     ["nav[1]", "/no/such/nav.rnx", "does not exist"]),
+    ("load_recording-no-nav", lambda: load_recording(__file__, []), ["nav", "none"]),
     ("replace-algorithm-list", lambda: Scenario().replace(algorithm=["gf"]), ["algorithm"]),
     ("from_dict-not-a-table", lambda: from_dict([1]), ["table"]),
     ("from_dict-duration-string", lambda: from_dict({"duration_s": "100"}),

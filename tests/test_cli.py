@@ -115,3 +115,106 @@ def test_compare_gives_each_option_to_the_algorithms_that_take_it(capsys):
     assert main(["compare", "seed004-multi", "--algorithms", "gf,rs", "--set",
                  "max_exclusions=3"]) == 2
     assert "max_exclusions' belongs to none of gf, rs" in capsys.readouterr().err
+
+
+def test_nav_is_repeatable_on_run_and_dashboard(capsys):
+    args = build_parser().parse_args(["run", "--obs", "o.rnx", "--nav", "A_GN.rnx",
+                                      "--nav", "A_EN.rnx"])
+    assert args.nav == ["A_GN.rnx", "A_EN.rnx"]
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    assert "repeatable: several files are merged" in " ".join(capsys.readouterr().out.split())
+    pytest.importorskip("viser")
+    args = build_parser().parse_args(["dashboard", "--obs", "o.rnx", "--nav", "A", "--nav",
+                                      "B"])
+    assert args.nav == ["A", "B"]
+
+
+def test_compressed_recording_gives_the_same_run_as_the_plain_files(shared_data, tmp_path,
+                                                                    capsys):
+    """The first 20 epochs of ESBC, plain and as Hatanaka + gzip (``.crx.gz``, made by the
+    ``hatanaka`` package) with a gzipped navigation file: the same summary."""
+    import gzip
+
+    import hatanaka
+
+    lines = (shared_data / "ESBC00DNK_R_20201770000_02H_30S_MO.rnx").read_text().splitlines()
+    epochs = [i for i, ln in enumerate(lines) if ln.startswith(">")]
+    plain = tmp_path / "cut.rnx"
+    plain.write_text("\n".join(lines[:epochs[20]]) + "\n")
+    crx = tmp_path / "cut.crx.gz"
+    crx.write_bytes(hatanaka.compress(plain.read_bytes(), compression="gz"))
+    assert crx.read_bytes()[:2] == b"\x1f\x8b"  # gzip
+    assert b"COMPACT RINEX" in gzip.decompress(crx.read_bytes())[:200]
+    nav = shared_data / "ESBC00DNK_R_20201770000_01D_MN.rnx"
+    nav_gz = tmp_path / "nav.rnx.gz"
+    nav_gz.write_bytes(gzip.compress(nav.read_bytes()))
+    out = []
+    for obs, nv in ((plain, nav), (crx, nav_gz)):
+        assert main(["run", "--obs", str(obs), "--nav", str(nv), "--fault",
+                     "G05,step,50,300", "-q"]) == 0
+        out.append(json.loads(capsys.readouterr().out))
+    assert out[0]["epochs"] == 20 and out[0]["detection_rate"] == 1.0
+    assert out[1] == out[0]
+
+
+# -- phone logs and --error-model (issue 15 items 6 and 8) ----------------------------------
+
+PHONE_LOG, PHONE_NAV = "pseudoranges_log_2016_06_30_21_26_07.txt", "hour1820.16n"
+#: The log's surveyed point (data README: WGS-84 37.422578, -122.081678, -28 m), ECEF.
+PHONE_TRUTH = "truth_ecef_m=[-2693671.7485, -4297132.6427, 3854726.4392]"
+
+
+def test_android_runs_a_phone_log_on_run_and_compare(shared_data, capsys):
+    log, nav = shared_data / PHONE_LOG, shared_data / PHONE_NAV
+    if not log.is_file():
+        pytest.skip(f"{PHONE_LOG} is not in ../shared/data")
+    assert main(["run", "--android", str(log), "--nav", str(nav), "--set", PHONE_TRUTH,
+                 "--fault", "G12,step,80,60", "-q"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["epochs"] == 223 and summary["unavailable_epochs"] == 0
+    assert summary["detection_rate"] == 1.0  # lesson 12's answer: 80 m on G12
+    assert summary["false_alarm_k"] == 0
+    assert main(["compare", "--android", str(log), "--nav", str(nav), "--set", PHONE_TRUTH,
+                 "--algorithms", "parity,mss", "--error-model", "elevation"]) == 0
+    out = capsys.readouterr().out
+    assert "223 epochs" in out and "\nparity " in out and "\nmss " in out
+    assert "measured error model" not in out  # --error-model elevation replaced it
+
+
+def test_error_model_option_is_the_set_shortcut_with_the_schemas_choices(capsys):
+    from raimcore.scenario import SCENARIO_KEYS
+
+    runs = []
+    for argv in (["--error-model", "elevation"], ["--set", "error_model=elevation"]):
+        assert main(["run", "seed000-step", "--set", "duration_s=30", "-q", *argv]) == 0
+        runs.append(json.loads(capsys.readouterr().out))
+    assert runs[0] == runs[1] and runs[0]["error_model"] == "elevation"
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    choices = ", ".join(SCENARIO_KEYS["error_model"].choices)
+    assert f"--error-model NAME the pseudorange error model, one of {choices}" in help_text
+    with pytest.raises(SystemExit) as exc:  # argparse's own refusal, exit 2
+        main(["compare", "default", "--error-model", "nope"])
+    assert exc.value.code == 2
+    assert f"choose from {', '.join(map(repr, SCENARIO_KEYS['error_model'].choices))}" in \
+        capsys.readouterr().err
+
+
+def test_building_the_parser_imports_no_scenario_module():
+    """--error-model's choices are looked up only when needed: `raim --version` stays fast."""
+    code = ("import sys; from raimcore.cli import build_parser; build_parser(); "
+            "print('raimcore.scenario' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_show_prints_the_reports_without_a_scenario_file(capsys):
+    assert main(["list"]) == 0
+    assert "Reports on real data (raim show NAME): android, recordings" in \
+        capsys.readouterr().out
+    for name, title in (("android", "# Phone logs"), ("recordings", "# Real recordings")):
+        assert main(["show", name]) == 0
+        assert capsys.readouterr().out.startswith(title)

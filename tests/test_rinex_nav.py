@@ -107,7 +107,7 @@ def test_skipped_systems_are_counted_in_a_note(tmp_path):
     n = read_nav(snip.nav_v3(tmp_path / "n.rnx"))  # G, R, E, S, C records
     assert sorted(n.records) == ["C", "E", "G", "R"]
     assert n.skipped == {"S": 1}
-    assert n.notes == ("1 record of SBAS skipped (not in systems='GCER')",)
+    assert n.notes == ("1 record of SBAS skipped (systems read: GPS, BeiDou, Galileo, GLONASS)",)
     assert read_nav(tmp_path / "n.rnx", systems="GRECJIS").notes == ()
 
 
@@ -136,7 +136,7 @@ def test_rinex4_eph_records_equal_the_rinex3_records(tmp_path):
                           "J": 1}
     assert set(v4.notes) == {"1 record of GPS CNAV skipped (message type not read)",
                              "1 record of BeiDou CNV1 skipped (message type not read)",
-                             "1 record of QZSS skipped (not in systems='GCER')"}
+                             "1 record of QZSS skipped (systems read: GPS, BeiDou, Galileo, GLONASS)"}
     # Klobuchar from the ION records (the RINEX 3 header's values, more digits).
     for key in ("GPSA", "GPSB", "BDSA", "BDSB"):
         np.testing.assert_allclose(v4.iono[key], v3.iono[key], rtol=1e-3)
@@ -252,8 +252,8 @@ def test_esbc_every_record_of_the_four_systems_is_read(esbc):
     count = _first_letters(ESBC_NAV)
     for s in "GREC":
         assert len(esbc.records[s][0]) == count[s], s
-    assert esbc.notes == (f"{count['J']} records of QZSS skipped (not in systems='GCER')",
-                          f"{count['S']} records of SBAS skipped (not in systems='GCER')")
+    assert esbc.notes == (f"{count['J']} records of QZSS skipped (systems read: GPS, BeiDou, Galileo, GLONASS)",
+                          f"{count['S']} records of SBAS skipped (systems read: GPS, BeiDou, Galileo, GLONASS)")
     assert esbc.leap_s == 18.0
 
 
@@ -292,8 +292,8 @@ def test_esbc_merged_with_itself_is_unchanged(esbc):
     twice = read_nav([ESBC_NAV, ESBC_NAV])
     assert_same_records(twice, esbc)  # every record of the copy dropped, silently:
     assert twice.skipped == {k: 2 * v for k, v in esbc.skipped.items()}
-    assert twice.notes == tuple(f"{2 * esbc.skipped[s]} records of {name} skipped (not in "
-                                "systems='GCER')" for s, name in (("J", "QZSS"), ("S", "SBAS")))
+    assert twice.notes == tuple(f"{2 * esbc.skipped[s]} records of {name} skipped (systems "
+                                "read: GPS, BeiDou, Galileo, GLONASS)" for s, name in (("J", "QZSS"), ("S", "SBAS")))
 
 
 # -- compressed files --------------------------------------------------------------------------

@@ -158,3 +158,36 @@ def test_round_trip_and_parse_value():
     assert s.replace() == s
     assert parse_value("3") == 3 and parse_value("true") is True
     assert parse_value('["GPS","BDS"]') == ["GPS", "BDS"] and parse_value("abc") == "abc"
+
+
+@pytest.mark.parametrize("given, expected", [
+    ("n.rnx", ("n.rnx",)),
+    (["A_GN.rnx", "A_EN.rnx.gz"], ("A_GN.rnx", "A_EN.rnx.gz")),
+    (("A_GN.rnx",), ("A_GN.rnx",)),
+])
+def test_nav_is_a_path_or_a_list_of_paths(given, expected):
+    from pathlib import Path
+
+    from raimcore.scenario import Scenario, from_dict
+
+    s = Scenario(source="rinex", obs="o.rnx", nav=given)
+    assert s.nav == expected
+    assert from_dict(s.to_dict()) == s and s.to_dict()["nav"] == list(expected)
+    as_paths = [Path(p) for p in expected]
+    assert Scenario(source="rinex", obs="o.rnx", nav=as_paths).nav == expected
+    assert Scenario().nav == ()  # a simulation has none
+
+
+@pytest.mark.parametrize("nav, message", [
+    (5, "nav must be a file path or a list of file paths"),
+    (["a.rnx", 5], r"nav\[1\] must be a file path, got 5"),
+    (["a.rnx", ""], r"nav\[1\] must be a file path, got ''"),
+    (["a.rnx", "a.rnx"], r"nav\[1\] lists 'a.rnx' a second time \(it is nav\[0\]\)"),
+    ([], "needs obs and nav .*; nav names no file"),
+    ("", "needs obs and nav .*; nav names no file"),
+])
+def test_bad_nav_is_refused_naming_the_entry(nav, message):
+    from raimcore.scenario import Scenario
+
+    with pytest.raises(ValueError, match=message):
+        Scenario(source="rinex", obs="o.rnx", nav=nav)

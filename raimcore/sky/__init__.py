@@ -3,9 +3,12 @@
 A sky source turns a scenario into a :class:`Sky`: epoch times, satellite positions, the
 true receiver trajectory and which satellites could be tracked. Two sources:
 
-- :mod:`raimcore.sky.simulated`: a nominal constellation or a YUMA almanac
-  (:mod:`~raimcore.sky.constellations`) and a trajectory (:mod:`~raimcore.sky.trajectories`);
-- :mod:`raimcore.sky.recording`: a RINEX recording (:mod:`~raimcore.sky.rinex`, broadcast
+- :mod:`raimcore.sky.simulated`: nominal GPS, BeiDou, Galileo and GLONASS constellations or
+  a YUMA or SEM almanac (:mod:`~raimcore.sky.constellations`) and a trajectory
+  (:mod:`~raimcore.sky.trajectories`);
+- :mod:`raimcore.sky.recording`: a RINEX recording or an Android GnssLogger log
+  (:mod:`~raimcore.sky.android`) and one or more navigation files
+  (:mod:`~raimcore.sky.rinex`, broadcast
   ephemerides :mod:`~raimcore.sky.ephemeris`, corrections :mod:`~raimcore.sky.spp`), whose
   real pseudoranges come with it.
 
@@ -38,6 +41,9 @@ class Sky:
     pr_m : (E, S) real corrected pseudoranges of a recording (NaN where absent), or None
         for a simulated sky (the measure stage draws them).
     notes : what the source wants the user to know.
+    ura_m : (E, S) broadcast URA / SISA of the navigation record of each satellite (m;
+        NaN where the record gives none), or None (a simulated sky): the ``broadcast``
+        error model (:mod:`raimcore.measure.error_models`) reads it.
     """
 
     t_s: np.ndarray
@@ -54,6 +60,7 @@ class Sky:
     trackable: np.ndarray
     pr_m: np.ndarray | None = None
     notes: tuple[str, ...] = ()
+    ura_m: np.ndarray | None = None
 
     @property
     def recorded(self) -> bool:
@@ -63,7 +70,7 @@ class Sky:
 
 def build_sky(s) -> Sky:
     """The :class:`Sky` of scenario ``s`` from its source (``s.source``)."""
-    if s.source == "rinex":
+    if s.source != "sim":  # "rinex" or "android": one chain, two readers
         from .recording import recording_sky
 
         return recording_sky(s)

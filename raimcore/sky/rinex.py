@@ -816,8 +816,9 @@ def _merge(parts: list[tuple[NavFile, int | None]], systems: str) -> NavFile:
     for key, count in skipped.items():
         letter, _, msg = key.partition(" ")
         if key in NAV_SYSTEMS:
-            notes.append(f"{_plural(count, 'record')} of {NAV_SYSTEMS[key]} skipped (not in "
-                         f"systems={systems!r})")
+            used = ", ".join(NAV_SYSTEMS[x] for x in systems)
+            notes.append(f"{_plural(count, 'record')} of {NAV_SYSTEMS[key]} skipped (systems "
+                         f"read: {used})")
         elif letter in NAV_SYSTEMS:
             notes.append(f"{_plural(count, 'record')} of {NAV_SYSTEMS[letter]} {msg} skipped "
                          "(message type not read)")

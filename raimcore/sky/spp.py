@@ -56,10 +56,9 @@ __all__ = ["Corrected", "correct", "solve", "spp", "klobuchar", "troposphere",
 
 #: Every system :func:`correct` positions with, and the first letter of its satellites.
 ALL_SYSTEM_LETTER = {"GPS": "G", "BDS": "C", "GAL": "E", "GLO": "R"}
-#: The systems a recording scenario offers (``recording.recording_keys``): those the
-#: scenario schema takes today (``scenario.SYSTEMS``). Galileo and GLONASS join when the
-#: schema takes them; until then they are reached through :func:`correct` / :func:`spp`.
-SYSTEM_LETTER = {k: ALL_SYSTEM_LETTER[k] for k in ("GPS", "BDS")}
+#: The systems a recording scenario offers (``recording.recording_keys``): all of them, as
+#: the scenario schema takes all four (``scenario.SYSTEMS``).
+SYSTEM_LETTER = ALL_SYSTEM_LETTER
 #: Preferred code signals per system, first found wins (RINEX 3 and RINEX 2 names): GPS
 #: L1 C/A, BeiDou B1I (``C1I`` is its RINEX 3.02 name), Galileo E1 (pilot C or B+C; the
 #: clock and BGD of the I/NAV record), GLONASS L1 C/A.

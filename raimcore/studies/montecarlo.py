@@ -2,11 +2,12 @@
 
 A study is a grid of *settings* (visible satellites N, number of faulty satellites, fault
 bias in units of P_bias) times a list of *algorithms*; a cell is one setting and one
-algorithm. Each run draws a random GPS + BeiDou geometry (random time and user location
-with exactly N satellites tracked above the mask), random faulty satellites and Gaussian
-noise on the linearised model ``y = H x + b + e``; every algorithm of a setting sees the
-same runs (common random numbers), so their differences are not sampling noise between
-algorithms.
+algorithm. Each run draws a random geometry of the study's systems (default GPS + BeiDou,
+as seed 004; any of GPS, BDS, GAL, GLO, nominal constellations, one receiver clock each:
+random time and user location with exactly N satellites tracked above the mask), random
+faulty satellites and Gaussian noise on the linearised model ``y = H x + b + e``; every
+algorithm of a setting sees the same runs (common random numbers), so their differences
+are not sampling noise between algorithms.
 
 Reproducibility: runs are cut into fixed chunks of :data:`CHUNK_RUNS`; setting ``s`` gets
 ``SeedSequence(seed, spawn_key=key(s))`` and chunk ``c`` its ``spawn``-ed child ``c``. The
@@ -50,11 +51,12 @@ from .._validate import check_choice, check_int, check_positive, check_probabili
 from ..algorithms import groupfusion as gfm
 from ..algorithms._groupfusion_common import as_groups
 from ..geometry import geodetic_to_ecef, los_enu
-from ..sky.constellations import builtin
+from ..sky.constellations import SYSTEM_PREFIX, builtin
 
 __all__ = ["Study", "StudyResult", "run_study", "p_bias_m", "p_bias_group_m", "random_geometry",
            "simulate_runs", "KERNELS", "register_kernel", "parse_algorithm", "CHUNK_RUNS",
-           "markdown_table", "write_csv", "run_chunk", "BIAS_UNITS", "full_set_alarm"]
+           "markdown_table", "write_csv", "run_chunk", "BIAS_UNITS", "full_set_alarm",
+           "DEFAULT_SYSTEMS", "check_systems"]
 
 #: Fault units: the spec's full-set P_bias, or the group-level hypothesis.
 BIAS_UNITS = ("full", "group")
@@ -68,6 +70,8 @@ DETECTED = "_detected"
 
 #: Seconds in one sidereal-ish day used to draw random times (GPS repeats daily).
 _DAY_S = 86_400.0
+#: The systems of seed 004's geometries (the default of every study).
+DEFAULT_SYSTEMS = ("GPS", "BDS")
 
 
 @functools.lru_cache(maxsize=64)
@@ -106,33 +110,43 @@ def p_bias_m(n_visible: int, sigma_m: float, p_fa: float, p_md: float, n_states:
 # Random geometry and runs
 
 
-_CONST = None
+def check_systems(systems) -> tuple[str, ...]:
+    """``systems`` as a tuple of distinct names of GPS, BDS, GAL, GLO, or a ValueError."""
+    if isinstance(systems, str) or not isinstance(systems, Sequence) or not systems \
+            or len(set(systems)) != len(systems) \
+            or any(x not in SYSTEM_PREFIX for x in systems):
+        raise ValueError(f"systems must be a non-empty list of distinct names of "
+                         f"{', '.join(SYSTEM_PREFIX)}, got {systems!r}")
+    return tuple(systems)
 
 
-def _constellation():
-    global _CONST
-    if _CONST is None:
-        _CONST = builtin(("GPS", "BDS"))
-    return _CONST
+@functools.lru_cache(maxsize=8)
+def _constellation(systems: tuple[str, ...]):
+    return builtin(systems)
 
 
 def random_geometry(rng: np.random.Generator, n_runs: int, n_visible: int,
-                    mask_deg: float = 5.0, min_per_system: int = 2):
-    """Random GPS + BDS geometries with exactly ``n_visible`` satellites tracked.
+                    mask_deg: float = 5.0, min_per_system: int = 2,
+                    systems: Sequence[str] = DEFAULT_SYSTEMS):
+    """Random geometries of the nominal ``systems`` with exactly ``n_visible`` satellites
+    tracked.
 
     Times are uniform over a day, user locations uniform on the sphere (height 0). Where
     more than ``n_visible`` satellites are above the mask, a random ``n_visible`` of them
     are tracked; draws with fewer, or with fewer than ``min_per_system`` of a system
-    among the tracked ones, are rejected and redrawn (so every run has both clocks).
+    among the tracked ones, are rejected and redrawn (so every run has every clock).
 
     Returns
     -------
-    h : (n_runs, n_visible, 5) rows ``[-u_enu, 1_GPS, 1_BDS]``, satellites in constellation
-        order (GPS first).
-    sys_idx : (n_runs, n_visible) 0 = GPS, 1 = BDS.
+    h : (n_runs, n_visible, 3 + q) rows ``[-u_enu, 1_sys0, ..., 1_sys(q-1)]`` for the
+        q = ``len(systems)`` systems in the order given (default GPS + BDS: 5 columns),
+        satellites in constellation order (the first system's first).
+    sys_idx : (n_runs, n_visible) index of each satellite's system in ``systems``.
     """
-    const = _constellation()
-    is_bds = np.array([s == "BDS" for s in const.systems])
+    systems = check_systems(systems)
+    const = _constellation(systems)
+    sys_of = np.array([systems.index(s) for s in const.systems], dtype=int)
+    q = len(systems)
     out_h, out_sys, have = [], [], 0
     for _ in range(200):
         need = n_runs - have
@@ -151,13 +165,14 @@ def random_geometry(rng: np.random.Generator, n_runs: int, n_visible: int,
         k = np.where(vis, keys, np.inf)
         pick = np.sort(np.argsort(k, axis=-1)[:, :n_visible], axis=-1)  # constellation order
         ok = vis.sum(axis=-1) >= n_visible
-        bds = is_bds[pick]
-        ok &= (bds.sum(axis=-1) >= min_per_system) & ((~bds).sum(axis=-1) >= min_per_system)
+        sys_pick = sys_of[pick]
+        for j in range(q):
+            ok &= (sys_pick == j).sum(axis=-1) >= min_per_system
         rows = np.flatnonzero(ok)[:need]
         uu = np.take_along_axis(u[rows], pick[rows][..., None], axis=1)
-        b = bds[rows].astype(float)
-        out_h.append(np.concatenate([-uu, (1.0 - b)[..., None], b[..., None]], axis=-1))
-        out_sys.append(bds[rows].astype(int))
+        clocks = (sys_pick[rows][..., None] == np.arange(q)).astype(float)
+        out_h.append(np.concatenate([-uu, clocks], axis=-1))
+        out_sys.append(sys_pick[rows])
         have += rows.size
     else:  # pragma: no cover - only for absurd n_visible
         raise ValueError(f"n_visible={n_visible}: too few geometries with that many "
@@ -166,13 +181,15 @@ def random_geometry(rng: np.random.Generator, n_runs: int, n_visible: int,
 
 
 def simulate_runs(rng: np.random.Generator, n_runs: int, n_visible: int, n_faults: int,
-                  bias_m: float, sigma_m: float, mask_deg: float = 5.0):
-    """Draw ``n_runs`` runs: geometry, faulty satellites and noisy measurements.
+                  bias_m: float, sigma_m: float, mask_deg: float = 5.0,
+                  systems: Sequence[str] = DEFAULT_SYSTEMS):
+    """Draw ``n_runs`` runs: geometry (:func:`random_geometry` of ``systems``), faulty
+    satellites and noisy measurements.
 
-    Returns ``h (R, N, 5)``, ``y (R, N)`` (m, measurement minus truth prediction:
-    noise + bias) and ``faulty (R, N)`` bool.
+    Returns ``h (R, N, 3 + q)`` (5 for GPS + BDS), ``y (R, N)`` (m, measurement minus
+    truth prediction: noise + bias) and ``faulty (R, N)`` bool.
     """
-    h, _ = random_geometry(rng, n_runs, n_visible, mask_deg)
+    h, _ = random_geometry(rng, n_runs, n_visible, mask_deg, systems=systems)
     order = np.argsort(rng.random((n_runs, n_visible)), axis=-1)
     faulty = np.zeros((n_runs, n_visible), dtype=bool)
     faulty[np.arange(n_runs)[:, None], order[:, :n_faults]] = True
@@ -194,7 +211,7 @@ def register_kernel(name: str, fn: Kernel) -> None:
 
 
 def _r(h):
-    return h.shape[-1] + 1  # r = 4 + q (seed 004: 6 for GPS + BDS)
+    return h.shape[-1] + 1  # r = 4 + q, q systems (seed 004: 6 for GPS + BDS)
 
 
 # Each kernel takes its algorithm's options as the registered algorithm declares them
@@ -298,6 +315,8 @@ class Study:
         paper's fault size, which behaves like 2x ours).
     bias_unit : ``"full"`` (spec: P_bias of the full set, eq. 13) or ``"group"``
         (:func:`p_bias_group_m`, a hypothesis for the paper's unit).
+    systems : the constellations of the geometries (:func:`random_geometry`), default
+        GPS + BDS as seed 004; one clock state each, so P_bias uses ``3 + q`` states.
     gate : score a run only when the full-set chi-square test also alarms (module doc).
     name : used in file names.
     """
@@ -316,6 +335,7 @@ class Study:
     bias_unit: str = "full"
     gate: bool = False
     name: str = "study"
+    systems: tuple[str, ...] = DEFAULT_SYSTEMS
 
     def __post_init__(self):
         for name in ("n_visible", "n_faults", "bias", "algorithms"):
@@ -344,12 +364,20 @@ class Study:
         check_choice("bias_unit", self.bias_unit, BIAS_UNITS)
         if not isinstance(self.gate, bool):
             raise ValueError(f"gate must be true or false, got {self.gate!r}")
+        # n_visible >= 8 exceeds the 3 + q <= 7 states of any choice of systems.
+        object.__setattr__(self, "systems", check_systems(self.systems))
+
+    @property
+    def n_states(self) -> int:
+        """Position and one clock per system."""
+        return 3 + len(self.systems)
 
     def unit_m(self, n_visible: int) -> float:
         """The fault unit (m) for ``n_visible`` satellites."""
         if self.bias_unit == "group":
-            return p_bias_group_m(self.sigma_m, self.p_fa, self.p_md)
-        return p_bias_m(n_visible, self.sigma_m, self.p_fa, self.p_md)
+            return p_bias_group_m(self.sigma_m, self.p_fa, self.p_md, r=self.n_states + 1,
+                                  n_states=self.n_states)
+        return p_bias_m(n_visible, self.sigma_m, self.p_fa, self.p_md, self.n_states)
 
     def settings(self) -> list[tuple[int, int, float]]:
         """(N, faults, bias) in a fixed order: bias, faults, N (the paper's row order)."""
@@ -379,7 +407,8 @@ def run_chunk(study: Study, setting, chunk: int) -> dict[str, int]:
     css = _setting_ss(study.seed, setting).spawn(chunk + 1)[chunk]
     rng = np.random.default_rng(css)
     bias_m = b * study.bias_scale * study.unit_m(n)
-    h, y, faulty = simulate_runs(rng, n_runs, n, k, bias_m, study.sigma_m, study.mask_deg)
+    h, y, faulty = simulate_runs(rng, n_runs, n, k, bias_m, study.sigma_m, study.mask_deg,
+                                 study.systems)
     detected = full_set_alarm(h, y, study.sigma_m, study.p_fa)
     out = {DETECTED: int(detected.sum())}
     for algo in study.algorithms:
@@ -456,7 +485,8 @@ def _ledger_key(study: Study, setting) -> str:
     return json.dumps([n, k, b, study.runs, study.seed, study.sigma_m, study.p_fa,
                        study.p_md, study.mask_deg, study.bias_scale]
                       + ([study.bias_unit] if study.bias_unit != "full" else [])
-                      + (["gate"] if study.gate else []))
+                      + (["gate"] if study.gate else [])
+                      + ([list(study.systems)] if study.systems != DEFAULT_SYSTEMS else []))
 
 
 def _read_ledger(path: Path) -> dict[str, dict]:
@@ -598,7 +628,8 @@ def _run_dask(study, todo, finish, address: str, workers: int):
         client = Client(address)
     try:
         futs = [client.submit(run_chunk, study, s, c, key=f"raim-{study.name}-{s}-{c}-"
-                              f"{study.seed}-{study.runs}-{study.bias_scale}-{study.bias_unit}",
+                              f"{study.seed}-{study.runs}-{study.bias_scale}-{study.bias_unit}"
+                              f"-{'+'.join(study.systems)}",
                               pure=False)
                 for s, c in todo]
         settings = {f.key: s for f, (s, _) in zip(futs, todo, strict=True)}
