@@ -134,3 +134,9 @@ register_panel(PanelSpec("errors", figures.error_figure,
                          claim_pattern=figures.PROTECTION_LEVEL))
 
 from . import multifault  # noqa: E402,F401  (seed 004 multi-fault panel registers itself)
+from . import stanford as _stanford  # noqa: E402,I001
+
+# The Stanford-ESA diagram of every run with protection levels (after the sky plot: its
+# x axis is an error, not the time).
+register_panel(PanelSpec("stanford", _stanford.panel_figure,
+                         needs=("hpl_m", "vpl_m", "hpe_before_m", "vpe_before_m"), order=50))
