@@ -15,6 +15,7 @@ import numpy as np
 
 from raimcore.measure.faults import Fault
 from raimcore.scoring import Summary, in_fault_memory
+from raimcore.sky.constellations import SYSTEM_PREFIX
 
 from .figures import RunView
 from .mathrender import markdown_math
@@ -114,13 +115,18 @@ def verdict(view: RunView, summary: Summary, p_fa: float | None = None,
     :class:`~raimcore.scoring.Summary`, the same the command line prints; probabilities
     are written in scientific notation (:func:`format_probability`).
 
+    A constellation fault (``sat`` a system key) is told over all its satellites: its
+    detection is the first alarm naming any of them, and it reads "GAL excluded" only where
+    every faulted satellite of it is excluded ("only E05 of GAL excluded" otherwise).
+
     Parameters
     ----------
     view : the run as the figures see it.
     summary : the run's summary.
     p_fa : the false-alarm probability per epoch, for the expected number of false alarms.
     faults : the scenario's injected faults (``scenario.faults``); without them the faults
-        are read back from ``view.faulted`` (a ramp then seems to start one epoch late).
+        are read back from ``view.faulted`` (a ramp then seems to start one epoch late,
+        a constellation fault reads as one fault per satellite).
 
     Examples: ``"Fault on G10 detected at t = 129 s (9 s after its onset at t = 120 s),
     G10 excluded, HPE back to 3.1 m."``, ``"Fault on G05 from t = 300 s: alarm already
@@ -184,15 +190,24 @@ class _FaultStory:
             return w
         return w | in_fault_memory(w, self.memory)
 
+    def columns(self, f) -> np.ndarray:
+        """Indices of the satellites fault ``f`` acts on: its satellite, or every
+        satellite of its system for a constellation fault (``f.sat`` a system key; the
+        satellites are told by their names' RINEX letter)."""
+        names = self.view.sat_names
+        if f.sat in SYSTEM_PREFIX:
+            letter = SYSTEM_PREFIX[f.sat]
+            return np.array([k for k, n in enumerate(names) if n[:1] == letter], dtype=int)
+        return np.array([names.index(f.sat)] if f.sat in names else [], dtype=int)
+
     def tell(self, f, faults) -> str | None:
         """The sentence for fault ``f`` (None when it never acts: the summary warns)."""
         v, alarm = self.view, self.alarm
-        if f.sat not in v.sat_names:
-            return None
-        j = v.sat_names.index(f.sat)
+        cols = self.columns(f)
         window = self.window(f)
-        if not (window & v.faulted[:, j]).any():
+        if cols.size == 0 or not (window[:, None] & v.faulted[:, cols]).any():
             return None
+        who = _who(f)
         i_on = int(np.argmax(window))
         held = self.held(f)
         onset = f"t = {_fmt_t(f.t0_s)}"
@@ -202,43 +217,60 @@ class _FaultStory:
         culprit: dict[int, str] = {}
         rightly = set()
         for g in faults:
-            if g.sat == f.sat or g.sat not in v.sat_names:
+            if g.sat == f.sat:
                 continue
-            k = v.sat_names.index(g.sat)
-            rightly.add(k)
-            mine = alarm & self.named[:, k] & self.held(g)
+            ks = np.setdiff1d(self.columns(g), cols)
+            if ks.size == 0:
+                continue
+            rightly.update(int(k) for k in ks)
+            mine = alarm & self.named[:, ks].any(axis=1) & self.held(g)
             for i in np.flatnonzero(mine & ~by_other):
                 culprit[int(i)] = g.sat
             by_other |= mine
-        own = alarm & held & self.named[:, j]
+        own = alarm & held & self.named[:, cols].any(axis=1)
         if own.any():
-            return self._detected(f, j, int(np.argmax(own)), window, rightly) + "."
+            return self._detected(f, cols, int(np.argmax(own)), window, rightly) + "."
         hpe = self._hpe_up_to(window)
         # An alarm raised by another fault was on just before the onset and still is: it
         # is not this fault's detection.
         if i_on > 0 and by_other[i_on - 1] and alarm[i_on]:
-            wrong = self._excluded_instead(j, window, rightly)
-            return (f"Fault on {f.sat} from {onset}: alarm already active (raised by "
+            wrong = self._excluded_instead(cols, window, rightly)
+            return (f"{who} from {onset}: alarm already active (raised by "
                     f"{culprit[i_on - 1]}'s fault), {f.sat} never isolated"
                     f"{f', {wrong}' if wrong else ''}{hpe}.")
         other = alarm & held & ~by_other
         if other.any():
-            return self._detected(f, j, int(np.argmax(other)), window, rightly) + "."
+            return self._detected(f, cols, int(np.argmax(other)), window, rightly) + "."
         if (alarm & held).any():
             names = sorted({culprit[int(i)] for i in np.flatnonzero(alarm & held)})
-            return (f"Fault on {f.sat} from {onset} never isolated: every alarm while it "
+            return (f"{who} from {onset} never isolated: every alarm while it "
                     f"acted named {' or '.join(names)}'s fault{hpe}.")
-        return f"Fault on {f.sat} (from {onset}) never detected{hpe}."
+        return f"{who} (from {onset}) never detected{hpe}."
 
-    def _detected(self, f, j: int, i_det: int, window: np.ndarray, rightly: set) -> str:
+    def _detected(self, f, cols: np.ndarray, i_det: int, window: np.ndarray,
+                  rightly: set) -> str:
         v, t = self.view, self.t
         delay = t[i_det] - f.t0_s
-        msg = f"Fault on {f.sat} detected at t = {_fmt_t(t[i_det])}"
+        msg = f"{_who(f)} detected at t = {_fmt_t(t[i_det])}"
         msg += (f" ({_fmt_t(delay)} after its onset at t = {_fmt_t(f.t0_s)})" if delay > 0
                 else " (at its onset)")
-        excl = v.excluded[:, j] & window
+        excluded = v.excluded[:, cols]
+        excl = excluded.any(axis=1) & window
         if excl.any():
-            msg += f", {f.sat} excluded"
+            if f.sat in SYSTEM_PREFIX:
+                # The whole constellation out: every faulted satellite of it excluded.
+                faulted = v.faulted[:, cols]
+                whole = window & faulted.any(axis=1) & ~np.any(faulted & ~excluded, axis=1)
+                if whole.any():
+                    msg += f", {f.sat} excluded (every one of its satellites in view)"
+                    excl = whole
+                else:
+                    some = [v.sat_names[k] for k in cols[np.any(excluded[window], axis=0)]]
+                    more = f" and {len(some) - 3} more" if len(some) > 3 else ""
+                    return (msg + f", only {', '.join(some[:3])}{more} of {f.sat} excluded "
+                            f"(its other satellites stay faulty){self._hpe_up_to(window)}")
+            else:
+                msg += f", {f.sat} excluded"
             hpe = self.hpe_after
             if hpe is not None and np.isfinite(hpe[excl]).any():
                 med = float(np.nanmedian(np.abs(hpe[excl])))
@@ -247,15 +279,16 @@ class _FaultStory:
                 msg += f", HPE back to {med:.0f} m" if med >= 10 else \
                     f", HPE back to {med:.1f} m"
             return msg
-        wrong = self._excluded_instead(j, window, rightly)
+        wrong = self._excluded_instead(cols, window, rightly)
         return msg + (f", but {wrong}" if wrong else ", nothing excluded")
 
-    def _excluded_instead(self, j: int, window: np.ndarray, rightly: set) -> str:
+    def _excluded_instead(self, cols: np.ndarray, window: np.ndarray, rightly: set) -> str:
         """``"G02, G09 excluded instead (wrong satellite)"``: satellites excluded while the
         fault acts that are neither its own nor another fault's (empty if none)."""
         v = self.view
+        own = {int(k) for k in cols}
         wrong = [v.sat_names[k] for k in np.flatnonzero(np.any(v.excluded[window], axis=0))
-                 if k != j and k not in rightly]
+                 if k not in own and k not in rightly]
         if not wrong:
             return ""
         more = f" and {len(wrong) - 3} more" if len(wrong) > 3 else ""
@@ -269,6 +302,13 @@ class _FaultStory:
         if hpe is None or not np.isfinite(hpe[window]).any():
             return ""
         return f", HPE up to {np.nanmax(np.abs(hpe[window])):.0f} m"
+
+
+def _who(f) -> str:
+    """``"Fault on G10"``, or ``"Constellation fault on GAL (all its satellites)"``."""
+    if f.sat in SYSTEM_PREFIX:
+        return f"Constellation fault on {f.sat} (all its satellites)"
+    return f"Fault on {f.sat}"
 
 
 def _sentence(text: str) -> str:
