@@ -11,7 +11,14 @@ Receiver clock: the drift starts from the clock change between the first two epo
 of a system above :data:`~raimcore.algorithms.pf.CLOCK_JUMP_M`,
 :func:`~raimcore.algorithms.pf.clock_jump`) re-initialises that system's offset (the
 prediction moved by the jump, its variance increased by the jump estimate's) before the
-innovations are tested, so the test sees only the differential part.
+innovations are tested, so the test sees only the differential part. Where the receiver
+itself says its clock restarted (``clock_reset``, :func:`~raimcore.algorithms.pf.
+reset_epochs`), whatever the size of the jump: the offsets are centred on the common-mode
+innovation, their covariance with the rest of the state dropped and their variance set to
+the diffuse :data:`~raimcore.algorithms.pf.CLOCK_RESET_SD_M` squared, so the NIS is the
+satellite-to-satellite part, tested with ``m - q`` degrees of freedom (``q`` the systems
+in view); the drift is restarted too (:data:`~raimcore.algorithms.pf.
+CLOCK_RESET_DRIFT_SD_MPS`, learnt again from the next pair of epochs).
 
 Test: the normalised innovation squared ``NIS = nu^T S^-1 nu`` with ``S = H P H^T + R`` is
 chi-square with ``m`` degrees of freedom without a fault (Gaussian noise); alarm when it
@@ -29,12 +36,15 @@ from scipy import stats
 from ..lsq import clock_columns, wls
 from .pf import (
     CLOCK_JUMP_M,
+    CLOCK_RESET_DRIFT_SD_MPS,
+    CLOCK_RESET_SD_M,
     ProcessModel,
     availability,
     clock_jump,
     cov_enu_to_ecef,
     initial_drift,
     jump_variance,
+    reset_epochs,
 )
 
 __all__ = ["EkfRun", "run_ekf"]
@@ -48,14 +58,16 @@ class EkfRun:
     ----------
     estimate : (R, E, D) state after the update (NaN before the first fix).
     nis : (R, E) normalised innovation squared over the used satellites (NaN where no test).
-    threshold : (E,) ``chi2.ppf(1 - p_fa, m)``.
+    threshold : (E,) ``chi2.ppf(1 - p_fa, m)`` (``m - q`` at a clock restart and, with the
+        drift restarted, at the update after it: the offsets are diffuse there).
     norm_innov : (R, E, S) ``|nu_i| / sqrt(S_ii)`` (NaN where unused).
     alarm : (R, E) bool, ``nis > threshold``.
     worst : (R, E) int, the satellite with the largest normalised innovation (-1 if none).
     excluded : (R, E, S) bool, left out of the update (``exclude=True`` only).
     available : (E,) bool, ``m >= n + 1`` and the filter started.
     clock_jump_m : (R, E, q) receiver clock jumps detected and absorbed (m, per system;
-        0 where none).
+        0 where none; at a flagged restart the common-mode innovation, whatever its size).
+    reset : (E,) bool, the epochs at which a flagged clock restart was applied.
     """
 
     estimate: np.ndarray
@@ -67,6 +79,7 @@ class EkfRun:
     excluded: np.ndarray
     available: np.ndarray
     clock_jump_m: np.ndarray
+    reset: np.ndarray
 
 
 def _transition(model: ProcessModel, dt_s: float):
@@ -87,7 +100,8 @@ def _transition(model: ProcessModel, dt_s: float):
 
 def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
             model: ProcessModel, p_fa: float, *, exclude: bool,
-            init_inflate: float = 3.0, jump_m: float = CLOCK_JUMP_M) -> EkfRun:
+            init_inflate: float = 3.0, jump_m: float = CLOCK_JUMP_M, clock_reset=None,
+            reset_drift: bool = True) -> EkfRun:
     """Run the EKF and its innovation test over every epoch.
 
     Parameters
@@ -106,6 +120,10 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
     init_inflate : factor on the first fix's standard deviations for the initial P (and on
         the start drift's).
     jump_m : clock jump threshold on the common-mode innovation (m).
+    clock_reset : optional (E,) bool, the receiver says its clock restarted there
+        (:attr:`raimcore.measure.Measurements.clock_reset`); None: never.
+    reset_drift : at a restart, restart the drift too; False keeps its estimate and
+        variance (an oscillator running through the restart).
 
     Returns
     -------
@@ -145,8 +163,16 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
             break
     if k0 < 0:
         return EkfRun(est, nis, threshold, norm_innov, np.zeros((r_n, e_n), bool), worst,
-                      excluded, np.zeros(e_n, bool), jumps)
+                      excluded, np.zeros(e_n, bool), jumps, np.zeros(e_n, bool))
     available[:k0] = False
+    reset_at, relearn_at = reset_epochs(
+        np.zeros(e_n, bool) if clock_reset is None else clock_reset, available, k0)
+    if not (reset_drift and model.has_drift):
+        relearn_at[:] = False
+    # At a restart, and at the next update while the restarted drift is unknown, the q
+    # offsets in view are free: the satellite-to-satellite part has m - q dof.
+    threshold = np.where(reset_at | relearn_at,
+                         stats.chi2.isf(p_fa, np.maximum(dof - n_states + 3, 1)), threshold)
     x = np.zeros((r_n, d))
     x[:, :3] = fix.pos_ecef_m
     x[:, model.clocks] = np.nan_to_num(fix.clock_m)
@@ -190,9 +216,26 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
         h[..., model.clocks] = cc
         u = used[k][None, :] & np.ones((r_n, 1), bool)
         nu = np.where(u, np.nan_to_num(pr[:, k]) - rng_m - x[:, model.clocks] @ cc.T, 0.0)
-        # A receiver clock jump: re-initialise the offset from the common-mode innovation.
-        jump = clock_jump(nu, u, ck, n_sys, jump_m)  # (R, q)
-        hit = jump != 0.0
+        if reset_at[k]:
+            # The receiver says its clock restarted: new offsets, centred on the
+            # common-mode innovation, diffuse and independent of the rest of the state.
+            jump = clock_jump(nu, u, ck, n_sys, 0.0)  # (R, q), every system's median
+            jumps[:, k] = jump
+            x[:, model.clocks] += jump
+            nu = np.where(u, nu - jump @ cc.T, 0.0)
+            free = np.arange(model.clk0, model.clk0 + n_sys)
+            if model.has_drift and reset_drift:
+                free = np.append(free, model.drift)
+            p[:, free, :] = 0.0
+            p[:, :, free] = 0.0
+            p[:, free, free] = np.where(free == model.drift, CLOCK_RESET_DRIFT_SD_MPS**2,
+                                        CLOCK_RESET_SD_M**2)
+            hit = np.zeros((r_n, n_sys), dtype=bool)  # no evidence of a wrong drift
+        else:
+            # A receiver clock jump: re-initialise the offset from the common-mode
+            # innovation.
+            jump = clock_jump(nu, u, ck, n_sys, jump_m)  # (R, q)
+            hit = jump != 0.0
         if hit.any():
             jumps[:, k] = jump
             vj = jump_variance(np.where(u, 1.0 / var[k], 0.0), ck, n_sys) * init_inflate**2
@@ -240,4 +283,5 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
         p = ikh @ p @ np.swapaxes(ikh, -1, -2) + (gain * var[k]) @ np.swapaxes(gain, -1, -2)
         est[:, k] = x
     alarm = available[None] & (nis > threshold[None])
-    return EkfRun(est, nis, threshold, norm_innov, alarm, worst, excluded, available, jumps)
+    return EkfRun(est, nis, threshold, norm_innov, alarm, worst, excluded, available, jumps,
+                  reset_at)

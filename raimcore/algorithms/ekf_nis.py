@@ -39,7 +39,10 @@ SUMMARY = (
 
 EQUATIONS = r"""
 - State: position, clock offset per system, one clock drift (Brown & Hwang two-state
-  clock); a clock jump (common-mode innovation above 1 km) re-initialises the offset
+  clock); a clock jump (common-mode innovation above 1 km), or a restart the receiver
+  flags (a phone's hardware-clock discontinuity, a RINEX power failure), re-initialises
+  the offset: at a flagged restart it is diffuse, the test keeps the satellite-to-satellite
+  part with $m - q$ degrees of freedom and the drift is learnt again
 - Predict $\hat x_{k|k-1} = F \hat x_{k-1|k-1}$, $P_{k|k-1} = F P_{k-1|k-1} F^T + Q$
 - Innovation $\nu = \rho - h(\hat x_{k|k-1})$, $S = H P_{k|k-1} H^T + R$,
   $R = \mathrm{diag}(\sigma_i^2)$
@@ -54,7 +57,8 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
     """Run the plain and the protected EKF on every epoch (options: the process model,
     shared with ``pf-llr``: ``model``, ``q_pos_mps``, ``q_vel_mps2``, ``q_clk_mps``,
     ``q_drift_mps2``). Column ``clock_jump_ms``: a receiver clock jump absorbed at that
-    epoch (ms; 0: none)."""
+    epoch (ms; 0: none), at a restart flagged in ``data.clock_reset`` the common-mode
+    innovation of the re-initialised clock."""
     model = process_model(options, len(data.systems))
     std = data.noise.std_m
     sigma = std if math.isfinite(std) else data.noise.sigma_m
@@ -63,8 +67,8 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
         sigma = sigma * scale
     args = (data.pos_sv_ecef_m, data.pr_m[None], data.used, data.t_s, data.sys_idx,
             len(data.systems), sigma, model, data.p_fa)
-    plain = run_ekf(*args, exclude=False)
-    prot = run_ekf(*args, exclude=True)
+    plain = run_ekf(*args, exclude=False, clock_reset=data.clock_reset)
+    prot = run_ekf(*args, exclude=True, clock_reset=data.clock_reset)
     avail = prot.available
     k0 = np.flatnonzero(avail)[:1]
     armed = avail.copy()

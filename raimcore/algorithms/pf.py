@@ -43,7 +43,16 @@ rose from 100 to 296, above the time-correlated calibration's 279).
 Clock jumps (a receiver steering its clock by whole milliseconds, or a reset) are
 detected on the common-mode part of the innovations (:func:`clock_jump`) and the clock
 offset re-initialised instead of filtered (:func:`run_llr_bank`, :func:`~raimcore.
-algorithms.ekf.run_ekf`).
+algorithms.ekf.run_ekf`). Where the receiver itself says its clock restarted
+(``clock_reset``: an Android phone's hardware-clock discontinuity, a RINEX "power failure"
+flag) the offsets are re-initialised whatever the size of the jump (a duty-cycled phone's
+restarts move its clock by tens of metres, far below :data:`CLOCK_JUMP_M`): centred on the
+common-mode innovation with the diffuse prior :data:`CLOCK_RESET_SD_M` and decorrelated
+from the rest of the state, so that epoch's test sees only the satellite-to-satellite part
+of the innovations. The drift restarts with them (:data:`CLOCK_RESET_DRIFT_SD_MPS`) and is
+learnt again at the next update, from the clock change since the restart, as at the start
+(:func:`reset_epochs`); the offsets of that update are diffuse too. The LLRs of such epochs
+leave out the clock's own share (:func:`clock_occam`).
 
 Measurement model: ``rho_i = ||r - s_i|| + c dt_sys(i) + v_i`` with ``v_i`` from the
 scenario's noise model (:mod:`raimcore.measure.noise`): the filter's likelihood is its ``logpdf``.
@@ -82,7 +91,8 @@ __all__ = ["PROCESS_MODELS", "ProcessModel", "ParticleBank", "predict", "log_lik
            "normalise_log_weights", "effective_sample_size", "systematic_resample",
            "weighted_mean", "initial_cloud", "clock_jump", "initial_drift", "drift_step_var",
            "propose", "PROPOSALS", "PROPOSAL_DEFENSIVE", "Q_CLK_TCXO_MPS", "Q_DRIFT_TCXO_MPS2",
-           "CLOCK_JUMP_M", "MS_M"]
+           "CLOCK_JUMP_M", "MS_M", "CLOCK_RESET_SD_M", "CLOCK_RESET_DRIFT_SD_MPS",
+           "reset_epochs", "clock_occam"]
 
 PROCESS_MODELS = ("static", "cv")
 #: Proposals of :class:`ParticleBank`: ``"clock"`` (:func:`propose`, the default) or
@@ -111,6 +121,22 @@ Q_DRIFT_TCXO_MPS2 = C_MPS * math.sqrt(2.0 * math.pi**2 * TCXO_HM2_PS)
 #: receiver is 1 ms (299,792 m) and a reset arbitrary. A common-mode error on every
 #: satellite of a system moves no position (the clock absorbs it), so no fault is hidden.
 CLOCK_JUMP_M = 1000.0
+#: Prior standard deviation (m) of a clock offset re-initialised where the receiver says
+#: its clock restarted, after centring it on the common-mode innovation (whose error is
+#: metres): diffuse, so the common mode adds about (error / CLOCK_RESET_SD_M)^2 ~ 1e-5 to a
+#: test statistic, and the offset is set by this epoch's pseudoranges alone. The jump
+#: detector's scale: any larger reset is a detected jump as well.
+CLOCK_RESET_SD_M = CLOCK_JUMP_M
+#: Prior standard deviation (m/s) of the clock drift from a restart on (diffuse): the drift
+#: is learnt again from the next pair of epochs of one clock segment, as at the start
+#: (:func:`initial_drift`). A restart may change the oscillator's frequency, and a
+#: duty-cycled phone's drift cannot be followed across restarts (214 of the shared log's
+#: 222 pairs of epochs straddle one). Measured on seed002 (restarts at 30 % of the epochs,
+#: the drift changed by 1-10 m/s at each): kept, the error lands in the next test as a
+#: common mode, EKF 26 % and PF-LLR 77 % false alarms; restarted, 2.4 % and 0.1 % (the
+#: steady clock's 2.7 % and 0.0 %). Without a drift change, restarting costs no false
+#: alarm; the position error grows (3D RMS x1.05 EKF, x1.3 PF-LLR with 30 % flagged).
+CLOCK_RESET_DRIFT_SD_MPS = CLOCK_JUMP_M
 #: Share of the clock proposal drawn from the state equation (:func:`propose`, a defensive
 #: mixture, Hesterberg 1995): the importance ratio prior / proposal never exceeds
 #: 1 / PROPOSAL_DEFENSIVE, whatever the tails of the likelihood (a Gaussian proposal
@@ -201,11 +227,12 @@ def _move(x, noise, dt_s: float, model: ProcessModel, q_scale: float, q_scale_ve
         x[..., :3] += model.q_pos_mps * sq * noise[..., :3]
 
 
-def _condition_drift(x, e, model: ProcessModel, drift_var, dt: float, q_scale: float):
+def _condition_drift(x, e, model: ProcessModel, drift_var, dt: float, q_scale: float,
+                     reset_var: float = 0.0):
     """Move the drift means of particles ``x`` (..., N, D) to their value given the drawn
     offset noise ``e`` (..., N, q), in place: ``d += c 1^T S^-1 e = c sum(e) / (a + q
     beta)`` (Sherman-Morrison on ``S = a I + beta 1 1^T``, see :func:`predict`)."""
-    a, beta, c = _drift_terms(model, drift_var, dt, q_scale)
+    a, beta, c = _drift_terms(model, drift_var, dt, q_scale, reset_var)
     den = a + model.n_clk * beta
     gain = np.where(den > 0, c / np.where(den > 0, den, 1.0), 0.0)
     x[..., model.drift] += gain[..., None] * e.sum(-1)
@@ -312,9 +339,12 @@ def propose(particles, dt_s: float, model: ProcessModel, rng: np.random.Generato
 
 
 def _propose(particles, dt_s, model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx, noise,
-             q_scale, q_scale_vel, drift_var):
+             q_scale, q_scale_vel, drift_var, reset_var: float = 0.0):
     """:func:`propose`, also returning the log-likelihood (..., N) of the drawn particles
-    (:func:`log_likelihood`, from the residuals the proposal computed anyway)."""
+    (:func:`log_likelihood`, from the residuals the proposal computed anyway).
+    ``reset_var`` (m^2): at a clock restart, the offsets' prior variance about their
+    prediction (:data:`CLOCK_RESET_SD_M` squared; 0 otherwise): they are then drawn from
+    what the measurements say."""
     x = np.array(particles, dtype=float, copy=True)
     batch, n, q = x.shape[:-2], x.shape[-2], model.n_clk
     dt = max(float(dt_s), 0.0)
@@ -325,7 +355,7 @@ def _propose(particles, dt_s, model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx, no
     pick = rng.random(batch + (n,))  # < PROPOSAL_DEFENSIVE: the prior component
     _move(x, noise_std, dt_s, model, q_scale, q_scale_vel)
     clk = model.clocks
-    a = (model.q_clk_mps * q_scale)**2 * dt
+    a = (model.q_clk_mps * q_scale)**2 * dt + reset_var
     beta = np.zeros(batch)
     if model.has_drift:
         x[..., clk] += x[..., model.drift, None] * dt  # the prior mean b + d dt
@@ -393,25 +423,29 @@ def _propose(particles, dt_s, model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx, no
     e = e.reshape(batch + (n, q))
     x[..., clk] += e
     if model.has_drift:
-        _condition_drift(x, e, model, drift_var, dt, q_scale)
+        _condition_drift(x, e, model, drift_var, dt, q_scale, reset_var)
     return x, log_ratio.reshape(batch + (n,)), ll.reshape(batch + (n,))
 
 
-def _drift_terms(model: ProcessModel, drift_var, dt: float, q_scale: float):
+def _drift_terms(model: ProcessModel, drift_var, dt: float, q_scale: float,
+                 reset_var: float = 0.0):
     """``a`` (per-system offset noise), ``beta`` (common offset noise) and ``c`` (drift -
     offset covariance) of one prediction step (see :func:`predict`), shaped like
-    ``drift_var``."""
+    ``drift_var``; ``reset_var`` (m^2): the prior variance of offsets re-initialised at a
+    clock restart, independent of everything else (it adds to ``a``)."""
     v = np.asarray(drift_var, dtype=float)
     g = model.q_drift_mps2**2
-    a = (model.q_clk_mps * q_scale)**2 * dt
+    a = (model.q_clk_mps * q_scale)**2 * dt + reset_var
     return a, v * dt**2 + g * dt**3 / 3.0, v * dt + g * dt**2 / 2.0
 
 
-def drift_step_var(model: ProcessModel, drift_var, dt_s: float, q_scale: float = 1.0):
+def drift_step_var(model: ProcessModel, drift_var, dt_s: float, q_scale: float = 1.0,
+                   reset_var: float = 0.0):
     """The drift variance after a :func:`predict` step (the Riccati step of the
-    marginalised drift, ref. [2]): ``V + q_drift^2 dt - q c^2 / (a + q beta)``."""
+    marginalised drift, ref. [2]): ``V + q_drift^2 dt - q c^2 / (a + q beta)`` (a clock
+    restart's ``reset_var`` in ``a``: the offsets then say nothing about the drift)."""
     dt = max(float(dt_s), 0.0)
-    a, beta, c = _drift_terms(model, drift_var, dt, q_scale)
+    a, beta, c = _drift_terms(model, drift_var, dt, q_scale, reset_var)
     den = a + model.n_clk * beta
     red = np.where(den > 0, model.n_clk * c * c / np.where(den > 0, den, 1.0), 0.0)
     return np.maximum(np.asarray(drift_var, float) + model.q_drift_mps2**2 * dt - red, 0.0)
@@ -742,6 +776,77 @@ def clock_jump(resid_m, mask, sys_idx, n_sys: int, threshold_m: float = CLOCK_JU
     return out
 
 
+def reset_epochs(clock_reset, available, k0: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where a filter started at ``k0`` re-initialises its clock.
+
+    Parameters
+    ----------
+    clock_reset : (E,) bool, the receiver says its clock restarted
+        (:attr:`raimcore.measure.Measurements.clock_reset`).
+    available : (E,) bool, the epochs the filter updates at.
+    k0 : the filter's first epoch.
+
+    Returns
+    -------
+    reset : (E,) bool, the available epochs after ``k0`` with a restart flagged at them or
+        since the previous available epoch (a restart during an outage is applied at the
+        next update; one at or before ``k0`` is the start's): new clock offsets.
+    relearn : (E,) bool, the first available epoch after a run of ``reset`` epochs that
+        is not one: where a restarted drift is learnt again, from the clock change since
+        the reset epoch before it (as the start's, :func:`initial_drift`).
+
+    >>> reset, relearn = reset_epochs([0, 1, 0, 1, 0, 0, 1, 1, 0], [1] * 3 + [0] + [1] * 5, 0)
+    >>> reset.astype(int), relearn.astype(int)
+    (array([0, 1, 0, 0, 1, 0, 1, 1, 0]), array([0, 0, 1, 0, 0, 1, 0, 0, 1]))
+    """
+    flags = np.asarray(clock_reset, dtype=bool)
+    reset = np.zeros(flags.shape, dtype=bool)
+    relearn = np.zeros(flags.shape, dtype=bool)
+    idx = np.flatnonzero(np.asarray(available, dtype=bool) & (np.arange(flags.size) > k0))
+    if idx.size:
+        count = np.cumsum(flags)
+        prev = np.r_[k0, idx[:-1]]
+        reset[idx] = count[idx] != count[prev]
+        relearn[idx] = reset[prev] & ~reset[idx]
+    return reset, relearn
+
+
+def clock_occam(used, sys_idx, n_sys: int, noise) -> tuple[np.ndarray, np.ndarray]:
+    """What the LLRs ``s_j`` of an epoch whose clock offsets are drawn anew carry that says
+    nothing about satellite ``j``.
+
+    The main filter integrates each system's offset out over that system's satellites, a
+    factor ``sqrt(2 pi / W_s)`` (Gaussian; ``W_s`` the sum of the weights ``1 / std^2`` of
+    the system's used satellites), auxiliary filter ``j`` over one satellite fewer,
+    ``sqrt(2 pi / (W_s - w_j))``: ``s_j`` gains ``0.5 ln(W_s / (W_s - w_j))`` (0.09 for six
+    equal satellites) that a known clock does not give, so the windowed LLRs would creep
+    above those of the steady clock the threshold is calibrated on at each restart.
+
+    Returns
+    -------
+    occam : (S,) ``0.5 ln(W_s / (W_s - w_j))``, to subtract (0 for unused satellites).
+    alone : (S,) bool, the only used satellite of its system: nothing else sees its clock,
+        so it is not tested at such an epoch (``s_j = 0``, as for an unused satellite).
+
+    >>> occam, alone = clock_occam([1, 1, 1, 1, 1, 1, 0, 1], [0] * 6 + [1, 1], 2,
+    ...                            type("N", (), {"std_m": 2.0, "sigma_m": 2.0})())
+    >>> np.round(occam, 3)
+    array([0.091, 0.091, 0.091, 0.091, 0.091, 0.091, 0.   , 0.   ])
+    >>> alone.astype(int)
+    array([0, 0, 0, 0, 0, 0, 0, 1])
+    """
+    used = np.asarray(used, dtype=bool)
+    cc = (np.asarray(sys_idx, dtype=int)[:, None] == np.arange(n_sys)[None, :]).astype(float)
+    w = np.where(used, np.broadcast_to(_noise_weight(noise), used.shape), 0.0)
+    w_sys = (w @ cc) @ cc.T  # (S,) the W_s of each satellite's system
+    rest = w_sys - w
+    alone = used & (rest <= 0.0)
+    tested = used & ~alone
+    occam = np.where(tested, 0.5 * np.log(np.where(tested, w_sys, 1.0)
+                                          / np.where(tested, rest, 1.0)), 0.0)
+    return occam, alone
+
+
 def jump_variance(weights, sys_idx, n_sys: int):
     """Variance (..., n_sys) of the median common-mode estimate of :func:`clock_jump`:
     ``(pi / 2) / sum_i w_i`` over each system's satellites (the median's asymptotic
@@ -808,24 +913,27 @@ class ParticleBank:
 
     def step(self, dt_s, pos_sv_ecef_m, pr_m, mask, sys_idx, noise,
              rng: np.random.Generator, q_scale: float = 1.0,
-             q_scale_vel: float = 1.0) -> StepResult:
+             q_scale_vel: float = 1.0, reset_var: float = 0.0) -> StepResult:
         """Predict, weight by the likelihood, normalise, estimate, resample if needed.
 
         ``mask`` (..., S) says which measurements each filter scores (all False: predict
         only, ``log_pred = 0``). See :func:`log_likelihood` for the other arguments.
+        ``reset_var`` > 0: the receiver clock restarted, the offsets' prior variance about
+        their prediction (m^2, :func:`_propose`); such a step always uses the clock
+        proposal (drawn from a diffuse prior, no particle would land on the measurements).
         """
         drift_var = self.drift_var
-        if self.proposal == "prior":
+        if self.proposal == "prior" and reset_var == 0.0:
             self.particles = predict(self.particles, dt_s, self.model, rng, q_scale,
                                      q_scale_vel, drift_var)
             log_ratio = 0.0
         else:
             self.particles, log_ratio, ll = _propose(
                 self.particles, dt_s, self.model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx,
-                noise, q_scale, q_scale_vel, drift_var)
+                noise, q_scale, q_scale_vel, drift_var, reset_var)
         if self.model.has_drift:
-            self.drift_var = drift_step_var(self.model, drift_var, dt_s, q_scale)
-        if self.proposal == "prior":
+            self.drift_var = drift_step_var(self.model, drift_var, dt_s, q_scale, reset_var)
+        if self.proposal == "prior" and reset_var == 0.0:
             ll = log_likelihood(self.particles, pos_sv_ecef_m, pr_m, mask, sys_idx, noise,
                                 self.model)
         # seed 002 eq. (weights): w_k = w_{k-1} p(z_k | x_k), then normalise; drawn from
@@ -955,7 +1063,8 @@ def robust_fix(pos_sv_ecef_m, pr_m, used, sys_idx, n_sys: int, noise, n_iter: in
 
 def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
                  model: ProcessModel, *, n_particles: int, window: int, burn_in: int,
-                 rng: np.random.Generator, scale=None, keep_cloud: int = 0) -> BankRun:
+                 rng: np.random.Generator, scale=None, keep_cloud: int = 0,
+                 clock_reset=None, reset_drift: bool = True) -> BankRun:
     """Run the bank of s + 1 SIR filters and the windowed LLR test (spec section 3).
 
     Parameters
@@ -974,6 +1083,11 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
         recording, :class:`~raimcore.measure.noise.Scaled`); None: the same noise for all.
     keep_cloud : keep this many particles of the main filter (realisation 0) per epoch
         for display (``BankRun.cloud``); 0: none.
+    clock_reset : optional (E,) bool, the receiver says its clock restarted there
+        (:attr:`raimcore.measure.Measurements.clock_reset`); None: never.
+    reset_drift : at a restart, restart the drift too and learn it again at the next
+        update (:func:`_restart_drift`, :data:`CLOCK_RESET_DRIFT_SD_MPS`); False keeps its
+        estimate and variance (an oscillator running through the restart).
 
     Returns
     -------
@@ -986,7 +1100,13 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     (:func:`clock_jump`) shifts the clock offsets of every filter of that realisation by
     it (spread by the jump estimate's variance); a jump at two available epochs in a row
     is a wrong drift (a reset, or a jump between the first two epochs) and corrects the
-    drift by the second jump / dt.
+    drift by the second jump / dt. At a flagged restart (:func:`reset_epochs`) every
+    filter's offsets are instead centred on the main filter's common-mode innovation,
+    whatever its size, and drawn from this epoch's measurements (prior variance
+    :data:`CLOCK_RESET_SD_M` squared: the LLRs then compare only the satellite-to-satellite
+    part, less the clock's share :func:`clock_occam`), the drift is not conditioned on
+    them and, with ``reset_drift``, restarted: the next update draws its offsets the same
+    way and then sets every filter's drift from the clock change since the restart.
     """
 
     sv = np.asarray(pos_sv_ecef_m, dtype=float)
@@ -1018,6 +1138,11 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
                        np.full((r_n, e_n), -1), np.zeros(e_n, bool), np.zeros(e_n, bool),
                        clock_jump_m=np.zeros((r_n, e_n, n_sys)))
     available[:k0] = False
+    reset_at, relearn_at = reset_epochs(
+        np.zeros(e_n, bool) if clock_reset is None else clock_reset, available, k0)
+    if not (reset_drift and model.has_drift):
+        relearn_at[:] = False
+    fresh = reset_at | relearn_at  # clock offsets drawn anew from the measurements
     vel0, vel_sd = None, 1.0
     if model.kind == "cv":
         # Start velocity: difference of two robust fixes about 5 s apart.
@@ -1079,13 +1204,23 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
         q_scale = 1.0 + (boost - 1.0) * (1.0 - frac) ** 2
         q_scale_vel = 1.0 + (boost_vel - 1.0) * (1.0 - frac) ** 2
         mask = drop & used[k][None, :] if available[k] else np.zeros((q_n, s_n), bool)
-        if available[k]:
+        k_last = k_prev
+        if fresh[k]:
+            _centre_clock(bank, k, t_s[k] - t_s[k - 1], sv[k], pr[:, k], used[k], sys_idx,
+                          n_sys, jumps)
+            jumped = np.zeros_like(jumped)  # a restart is no evidence of a wrong drift
+            k_prev = k
+        elif available[k]:
             jumped = _absorb_clock_jump(bank, k, t_s[k] - t_s[k_prev], t_s[k] - t_s[k - 1],
                                         sv[k], pr[:, k], used[k], sys_idx, n_sys,
                                         noise_at(k), jumped, jumps, rng)
             k_prev = k
         res = bank.step(t_s[k] - t_s[k - 1], sv[k][None, None], pr[:, k][:, None, :],
-                        mask[None], sys_idx, noise_at(k), rng, q_scale, q_scale_vel)
+                        mask[None], sys_idx, noise_at(k), rng, q_scale, q_scale_vel,
+                        reset_var=CLOCK_RESET_SD_M**2 if fresh[k] else 0.0)
+        if relearn_at[k]:
+            _restart_drift(bank, k_last, k, t_s, sv, pr, used, sys_idx, n_sys,
+                           noise_at(k_last))
         estimate[:, k] = res.estimate
         if cloud is not None:  # the posterior sample after the update (and any resampling)
             cloud[k] = bank.particles[0, 0][pick]
@@ -1097,6 +1232,9 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
                 # seed 002 LLR as the spec reads it: each filter scores its own set,
                 # s_j(k) = ln p_aux_j(y^(-j) | Y_{k-1}) - ln p_main(y | Y_{k-1}).
                 llr[:, k] = np.where(used[k], res.log_pred[:, 1:] - res.log_pred[:, :1], 0.0)
+                if fresh[k]:  # the clock's share, not evidence about satellite j
+                    occam, alone = clock_occam(used[k], sys_idx, n_sys, noise_at(k))
+                    llr[:, k] = np.where(alone, 0.0, llr[:, k] - occam)
     # Sliding-window sum S_j(k) = sum_{t = k-W+1..k} s_j(t) (seed 002 section 2.2).
     c = np.concatenate([np.zeros((r_n, 1, s_n)), np.cumsum(llr, axis=1)], axis=1)
     lo = np.maximum(np.arange(e_n) + 1 - window, 0)
@@ -1112,11 +1250,10 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
                    jumps)
 
 
-def _absorb_clock_jump(bank: ParticleBank, k: int, dt_avail: float, dt_step: float, sv,
-                       pr, used, sys_idx, n_sys: int, noise, jumped, jumps, rng):
-    """Detect a receiver clock jump at epoch ``k`` on the main filter's prediction and
-    shift the clock offsets of every filter by it (:func:`run_llr_bank`); returns the
-    per-system "jumped" flags (R, q) and writes the jumps into ``jumps[:, k]``."""
+def _common_mode(bank: ParticleBank, dt_step: float, sv, pr, used, sys_idx, n_sys: int,
+                 threshold_m: float):
+    """:func:`clock_jump` (R, q) of the main filter's predicted residuals at an epoch
+    ``dt_step`` after the particles' (``threshold_m`` 0: every system's median)."""
     model = bank.model
     w = np.exp(bank.log_w[:, 0])
     m = weighted_mean(bank.particles[:, 0], w)  # (R, D), state at k - 1
@@ -1126,7 +1263,49 @@ def _absorb_clock_jump(bank: ParticleBank, k: int, dt_avail: float, dt_step: flo
         clk = clk + m[:, model.drift, None] * dt_step
     rng_m = np.linalg.norm(sv[None] - pos[:, None], axis=-1)
     resid = np.nan_to_num(pr) - rng_m - clk[:, np.asarray(sys_idx, dtype=int)]
-    jump = clock_jump(resid, used[None], sys_idx, n_sys)  # (R, q)
+    return clock_jump(resid, used[None], sys_idx, n_sys, threshold_m)
+
+
+def _centre_clock(bank: ParticleBank, k: int, dt_step: float, sv, pr, used, sys_idx,
+                  n_sys: int, jumps):
+    """A flagged clock restart at epoch ``k``: shift every filter's offsets by the main
+    filter's common-mode innovation (written into ``jumps[:, k]``); the step that follows
+    draws them from the measurements (:func:`run_llr_bank`)."""
+    jump = _common_mode(bank, dt_step, sv, pr, used, sys_idx, n_sys, 0.0)
+    jumps[:, k] = jump
+    bank.particles[..., bank.model.clocks] += jump[:, None, None, :]
+
+
+def _restart_drift(bank: ParticleBank, k_reset: int, k: int, t_s, sv, pr, used, sys_idx,
+                   n_sys: int, noise):
+    """The drift after a clock restart at ``k_reset``, learnt at the next update ``k`` as
+    the start's (:func:`initial_drift`: the robust clock change between the two epochs,
+    the main filter's position): every particle of every filter gets it, its variance the
+    common one (:func:`run_llr_bank`). Drawn from each particle's own pair of offsets
+    instead, 100 particles carried drifts a few m/s apart that the following epochs
+    pruned: PF-LLR alarmed at 2.4 % of seed002's fault-free epochs with restarts at 30 %
+    of them (0.0 % without restarts)."""
+    model = bank.model
+    m = weighted_mean(bank.particles[:, 0], np.exp(bank.log_w[:, 0]))  # (R, D) at k
+    dt = t_s[k] - t_s[k_reset]
+    vel = m[:, 3:6] if model.kind == "cv" else None
+    pos0 = m[:, :3] - (vel * dt if vel is not None else 0.0)
+    both = used[k_reset] & used[k]
+    drift, sd = initial_drift(sv[k_reset], sv[k], pr[:, k_reset], pr[:, k], both, sys_idx,
+                              n_sys, pos0, dt, np.where(both, _noise_weight(noise), 0.0),
+                              vel_rx_ecef_mps=vel)
+    bank.particles[..., model.drift] = drift[:, None, None]
+    var = np.where(np.isfinite(sd), sd**2, CLOCK_RESET_DRIFT_SD_MPS**2)
+    bank.drift_var[...] = var.reshape((-1,) + (1,) * (bank.drift_var.ndim - 1))
+
+
+def _absorb_clock_jump(bank: ParticleBank, k: int, dt_avail: float, dt_step: float, sv,
+                       pr, used, sys_idx, n_sys: int, noise, jumped, jumps, rng):
+    """Detect a receiver clock jump at epoch ``k`` on the main filter's prediction and
+    shift the clock offsets of every filter by it (:func:`run_llr_bank`); returns the
+    per-system "jumped" flags (R, q) and writes the jumps into ``jumps[:, k]``."""
+    model = bank.model
+    jump = _common_mode(bank, dt_step, sv, pr, used, sys_idx, n_sys, CLOCK_JUMP_M)  # (R, q)
     hit = jump != 0.0
     if not hit.any():
         return np.zeros_like(jumped)

@@ -7,7 +7,9 @@ own measurement set with its predictive likelihood; the LLR of "satellite j faul
 ``beta(k) = max_j S_j(k)`` is compared with a threshold ``tau`` calibrated by fault-free
 Monte Carlo runs of the same bank (cached per configuration); on an alarm the satellite
 ``argmax_j S_j`` is named and excluded: the position after exclusion is auxiliary filter
-j's estimate.
+j's estimate. Where the receiver says its clock restarted (``Measurements.clock_reset``)
+the filters re-initialise their clock offsets from that epoch's measurements, so the LLRs
+compare only the satellite-to-satellite part (:func:`~raimcore.algorithms.pf.run_llr_bank`).
 """
 
 from __future__ import annotations
@@ -178,7 +180,8 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
     view, each armed epoch tested against its own set's tau), ``model``, ``q_pos_mps``,
     ``q_vel_mps2``, ``q_clk_mps``, ``q_drift_mps2`` (process model,
     :class:`raimcore.algorithms.pf.ProcessModel`). Column ``clock_jump_ms``: a receiver
-    clock jump absorbed at that epoch (ms; 0: none).
+    clock jump absorbed at that epoch (ms; 0: none), at a restart flagged in
+    ``data.clock_reset`` the common-mode innovation of the re-initialised clock.
     """
     n, window, burn_in = options["n_particles"], options["window"], options["burn_in"]
     p_fa, cache, tau_sets = options["p_fa_window"], options["tau_cache"], options["tau_sets"]
@@ -190,7 +193,7 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
     bank = run_llr_bank(data.pos_sv_ecef_m, data.pr_m[None], data.used, data.t_s,
                         data.sys_idx, len(data.systems), data.noise, model, n_particles=n,
                         window=window, burn_in=burn_in, rng=data.rng(0), scale=scale,
-                        keep_cloud=keep)
+                        keep_cloud=keep, clock_reset=data.clock_reset)
     armed = bank.armed
     extras = {}
     if bank.cloud is not None:

@@ -44,6 +44,11 @@ class Sky:
     ura_m : (E, S) broadcast URA / SISA of the navigation record of each satellite (m;
         NaN where the record gives none), or None (a simulated sky): the ``broadcast``
         error model (:mod:`raimcore.measure.error_models`) reads it.
+    clock_reset : (E,) bool, True where the receiver itself says its clock restarted since
+        the previous epoch of the sky (an Android log's HardwareClockDiscontinuityCount
+        changed, a RINEX epoch flag 1 "power failure"; the first epoch False), or None
+        (a simulated sky: never). The filters re-initialise their clock state there
+        (:attr:`raimcore.measure.Measurements.clock_reset`).
     """
 
     t_s: np.ndarray
@@ -61,6 +66,7 @@ class Sky:
     pr_m: np.ndarray | None = None
     notes: tuple[str, ...] = ()
     ura_m: np.ndarray | None = None
+    clock_reset: np.ndarray | None = None
 
     @property
     def recorded(self) -> bool:

@@ -372,8 +372,15 @@ def recording_sky(s) -> Sky:
     rows, grid_notes = _window(t_rel, s.t_start_s, s.duration_s, s.step_s,
                                grid=s.source != "android")
     notes += grid_notes
+    # The receiver's own word that its clock restarted between two kept epochs: a phone's
+    # HardwareClockDiscontinuityCount changed, a RINEX epoch flag 1 (power failure).
+    if s.source == "android":
+        segment = _read_log(stamp).clock_count
+    else:
+        segment = np.cumsum(obs_file.epoch_flag == 1)
+    clock_reset = np.diff(segment[rows], prepend=segment[rows[:1]]) != 0
     if s.source == "android" and rows.size > 1:
-        n_reset = int(np.count_nonzero(np.diff(_read_log(stamp).clock_count[rows])))
+        n_reset = int(np.count_nonzero(clock_reset))
         if n_reset:
             notes.append(f"the phone's hardware clock restarted between {n_reset} of "
                          f"{rows.size - 1} pairs of consecutive epochs "
@@ -392,7 +399,7 @@ def recording_sky(s) -> Sky:
         cols = np.array([names.index(x) for x in s.sats], dtype=int)
     names = [names[c] for c in cols]
     for f in s.faults:
-        if f.sat not in names:
+        if f.system is None and f.sat not in names:
             raise ValueError(f"faults: satellite {f.sat!r} is not in this recording (with "
                              f"a usable ephemeris); choose from {', '.join(names)}")
     ix = np.ix_(rows, cols)
@@ -419,4 +426,4 @@ def recording_sky(s) -> Sky:
                h_rx_m=ecef_to_geodetic(truth_e)[2],
                range_m=np.linalg.norm(sv - truth_e[:, None, :], axis=-1), az_rad=az,
                el_rad=el, trackable=corr.tracked[ix] & corr.usable[ix], pr_m=corr.pr_m[ix],
-               notes=tuple(notes), ura_m=corr.ura_m[ix])
+               notes=tuple(notes), ura_m=corr.ura_m[ix], clock_reset=clock_reset)
