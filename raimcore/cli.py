@@ -122,6 +122,10 @@ with units and allowed values); values are TOML literals:
 --fault replaces the scenario's faults (repeat it for several faults):
   SAT,step,BIAS_M,T0_S[,T1_S]    a bias of BIAS_M metres from T0_S until T1_S
   SAT,ramp,RATE_MPS,T0_S[,T1_S]  a bias growing at RATE_MPS metres per second from T0_S
+SAT is a satellite (G10) or a system key of the scenario (GPS, BDS, GAL, GLO): a
+constellation fault, e.g. GAL,step,20,300, biasing each of its satellites by the bias
+times sin(elevation), as if its orbits were off by the bias along the receiver's
+vertical (the same bias on all of them would be absorbed by that system's receiver clock).
 """
 
 
@@ -318,7 +322,23 @@ def format_summary(result) -> str:
     if sm.hpl_mean_m is not None:
         lines.append(f"  mean HPL {sm.hpl_mean_m:.1f} m, mean VPL {_m(sm.vpl_mean_m, 1)}"
                      + (f"; available (HPL <= HAL {s.hal_m:g} m and VPL <= VAL {s.val_m:g} m): "
-                        f"{sm.pl_availability}" if sm.pl_availability is not None else ""))
+                        f"{sm.pl_availability}" if sm.pl_availability is not None
+                        and "emt_m" not in result.table.names else ""))
+    import numpy as np
+
+    from .scoring import Rate
+
+    names = result.table.names
+    if "emt_m" in names and "sigma_acc_m" in names:  # ARAIM: EMT, accuracy, LPV-200
+        emt, acc = result.table["emt_m"], result.table["sigma_acc_m"]
+        ok = np.isfinite(emt) & np.isfinite(acc)
+        line = (f"  EMT median {np.median(emt[ok]):.1f} m, sigma_acc median "
+                f"{np.median(acc[ok]):.2f} m" if ok.any() else "  EMT, sigma_acc: none")
+        if "available" in names:
+            av = np.asarray(result.table["available"], dtype=bool)
+            line += (f"; available by every LPV-200 criterion (VPL, HPL, EMT, sigma_acc): "
+                     f"{Rate(int(av.sum()), int(av.size))}")
+        lines.append(line)
     if sm.baro_vpl_lower_share is not None:
         lines.append(f"  baro lowers VPL at {_pct(sm.baro_vpl_lower_share)} of epochs "
                      f"(not higher at {_pct(sm.baro_vpl_not_higher_share)}), "

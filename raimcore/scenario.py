@@ -26,7 +26,14 @@ from typing import Any
 import numpy as np
 
 from . import algorithms
-from .measure.error_models import ERROR_MODELS
+from .measure.error_models import (
+    ERROR_MODELS,
+    MAAST_ISM,
+    USER_MODELS,
+    Ism,
+    ism_help,
+    parse_ism,
+)
 from .measure.faults import Fault
 from .measure.noise import NOISE_KINDS
 from .schema import (
@@ -302,11 +309,22 @@ class Scenario:
     error_model: str = key("auto", "pseudorange 1-sigma per satellite, assumed by the "
                            "algorithms and drawn by a simulation: uniform (sigma_m), "
                            "elevation (sigma_m at the zenith), rtklib, broadcast (URA + "
-                           "tropo + multipath), measured (fitted on a recording); auto: "
-                           "uniform simulated, elevation on a recording", kind="choice",
-                           choices=ERROR_MODELS, group="measurements")
+                           "tropo + multipath), measured (fitted on a recording), araim "
+                           "(ism URE + tropo + user_model); auto: araim under algorithm "
+                           "araim, else uniform simulated, elevation on a recording",
+                           kind="choice", choices=ERROR_MODELS, group="measurements")
+    user_model: str = key("add", "ARAIM airborne multipath + noise (error_model araim, "
+                          "algorithm araim): add (ADD / B2012: GPS curve x 2.5883, Galileo "
+                          "table) or ed259a (MAAST v5, every system)", kind="choice",
+                          choices=USER_MODELS, group="measurements")
+    ism: Ism = key(MAAST_ISM, ism_help(), kind="custom", parse=parse_ism,
+                   allowed_text='"maast" or a table of systems', group="integrity")
     faults: tuple[Fault, ...] = key((), "injected faults: [[faults]] tables (sat, kind "
-                                    "step|ramp, t0_s, t1_s, bias_m | rate_mps)",
+                                    "step|ramp, t0_s, t1_s, bias_m | rate_mps); sat a "
+                                    "system key (\"GAL\"): a constellation fault, each of "
+                                    "its satellites biased by bias x sin(elevation), also "
+                                    "written {kind = \"constellation\", system, shape "
+                                    "step|ramp, ...}",
                                     kind="custom", parse=_parse_faults,
                                     allowed_text="list of fault tables", group="faults")
     restrict: tuple[Restrict, ...] = key((), "windows tracking only some satellites: "
@@ -408,6 +426,8 @@ class Scenario:
                 v = [x.to_dict() for x in v]
             elif f.name == "rename":
                 v = dict(v)
+            elif f.name == "ism":
+                v = v.to_dict()
             elif isinstance(v, tuple):
                 v = list(v)
             d[f.name] = v
@@ -462,9 +482,14 @@ def _check_together(s: Scenario) -> None:
     if s.source == "sim" and s.error_model == "measured":
         raise SchemaError("error_model \"measured\" fits the errors of a recording (source "
                           "= \"rinex\" or \"android\"); a simulated scenario has none: "
-                          "choose auto, uniform, elevation, rtklib or broadcast")
+                          "choose auto, uniform, elevation, rtklib, broadcast or araim")
     letters = {SYSTEMS[x] for x in s.systems}
-    for where, names in (("sats", s.sats), ("faults", [f.sat for f in s.faults]),
+    for f in s.faults:
+        if f.system is not None and f.system not in s.systems:
+            raise SchemaError(f"faults: constellation fault {f.sat}: {f.sat} is not one of "
+                              f"this scenario's systems ({', '.join(s.systems)})")
+    for where, names in (("sats", s.sats),
+                         ("faults", [f.sat for f in s.faults if f.system is None]),
                          ("restrict", [x for r in s.restrict for x in r.sats])):
         for n in names:
             if n[:1] not in letters:
@@ -500,7 +525,7 @@ def _check_satellites(s: Scenario) -> None:
         raise SchemaError(f"rename {{{pairs}}} gives two satellites the name(s) "
                           f"{', '.join(clash)}; rename the satellite that has that name too, "
                           "or choose another name")
-    for where, names in (("faults", [f.sat for f in s.faults]),
+    for where, names in (("faults", [f.sat for f in s.faults if f.system is None]),
                          ("restrict", [x for r in s.restrict for x in r.sats])):
         bad = [n for n in names if n not in known]
         if bad:

@@ -2,7 +2,8 @@
 
 Each algorithm's array kernel sits beside its adapter: ``parity`` (kernel) and
 ``parity_fde`` (the registered algorithm), ``mss`` and ``mss_fde``, ``pf`` and ``pf_llr``,
-``ekf`` and ``ekf_nis``, ``groupfusion`` and ``groupfusion_gf`` / ``_rs`` / ``_qv``.
+``ekf`` and ``ekf_nis``, ``groupfusion`` and ``groupfusion_gf`` / ``_rs`` / ``_qv``,
+the package :mod:`raimcore.araim` and ``araim``.
 
 To add an algorithm: write one module that declares its options once
 (:func:`raimcore.schema.option`) and calls :func:`register`, and add its module name to
@@ -29,6 +30,7 @@ _MODULES = [
     "groupfusion_qv",
     "pf_llr",
     "ekf_nis",
+    "araim",
 ]
 
 _lock = threading.Lock()

@@ -24,7 +24,7 @@ from ..lsq import clock_columns
 from .data import Measurements, Truth
 from .error_models import model_sigma, resolve_model
 from .errors import error_statistics
-from .faults import Fault, fault_biases
+from .faults import Fault, fault_bias, fault_biases, fault_columns
 from .noise import make_noise
 
 __all__ = ["measure", "Measurements", "Truth", "apply_restrict", "fault_notes",
@@ -45,9 +45,11 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
     t, names = sky.t_s, sky.sat_names
     used = sky.trackable & (sky.el_rad >= math.radians(s.mask_deg))
     apply_restrict(used, t, names, s.restrict)
-    bias = fault_biases(s.faults, t, names)
-    model = resolve_model(s.error_model, sky.recorded)
-    sigma, model_notes = model_sigma(model, sky, used, s.sigma_m)
+    sat_systems = np.asarray(sky.systems, dtype=object)[sky.sys_idx]
+    bias = fault_biases(s.faults, t, names, sat_systems, sky.el_rad)
+    model = resolve_model(s.error_model, sky.recorded, s.algorithm)
+    sigma, model_notes = model_sigma(model, sky, used, s.sigma_m, ism=s.ism,
+                                     user_model=s.user_model)
     sigma_ref = _reference_sigma(model, sigma, used, s.sigma_m)
     noise = make_noise(s.noise, sigma_ref, mixture_eps=s.mixture_eps,
                        mixture_scale=s.mixture_scale, student_nu=s.student_nu,
@@ -79,7 +81,9 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
         pos_sv_ecef_m=sky.pos_sv_ecef_m, pr_m=pr, used=used, az_rad=sky.az_rad,
         el_rad=sky.el_rad, sigma_m=sigma, noise=noise, p_fa=s.p_fa, p_md=s.p_md,
         hal_m=s.hal_m, val_m=s.val_m, seed=int(s.seed), baro_alt_m=baro_alt,
-        sigma_baro_m=s.sigma_baro_m if s.baro else None, error_model=model)
+        sigma_baro_m=s.sigma_baro_m if s.baro else None, error_model=model,
+        ism=s.ism, user_model=s.user_model,
+        clock_reset=sky.clock_reset)  # None (a simulated sky): never
     truth = Truth(pos_rx_ecef_m=sky.pos_rx_ecef_m, vel_rx_ecef_mps=sky.vel_rx_ecef_mps,
                   fault_bias_m=bias, used=used)
     if sky.pr_m is not None:  # a recording: measure its errors before any fault is added
@@ -88,7 +92,7 @@ def measure(sky, s) -> tuple[Measurements, Truth]:
         note = _error_note(clean_meas, no_fault, s)
         if note:
             notes.append(note)
-    notes += fault_notes(s.faults, truth, names, t)
+    notes += fault_notes(s.faults, truth, names, t, sat_systems, sky.el_rad)
     return dataclasses.replace(meas, notes=tuple(notes)), truth
 
 
@@ -129,28 +133,39 @@ def apply_restrict(used, t, sat_names, restrict) -> None:
         used[window] &= keep[None, :]
 
 
-def fault_notes(faults: tuple[Fault, ...], truth: Truth, sat_names, t_s) -> list[str]:
-    """A warning for each fault that never acts on a used measurement, saying why."""
+def fault_notes(faults: tuple[Fault, ...], truth: Truth, sat_names, t_s, sat_systems=None,
+                el_rad=None) -> list[str]:
+    """A warning for each fault that never acts on a used measurement, saying why.
+
+    ``sat_systems`` (S,) and ``el_rad`` (E, S) are needed for constellation faults (see
+    :func:`~raimcore.measure.faults.fault_bias`); such a fault never acts when no satellite
+    of its system is used while it is on."""
     out = []
-    index = {n: k for k, n in enumerate(sat_names)}
     t = np.asarray(t_s, dtype=float)
     t_end = float(t[-1]) if t.size else 0.0
     for f in faults:
-        k = index[f.sat]
-        acts = (f.bias_at(t) != 0) & truth.used[:, k]
-        if acts.any():
+        cols = fault_columns(f, sat_names, sat_systems)
+        bias = fault_bias(f, t, sat_names, sat_systems, el_rad)[:, cols]
+        used = truth.used[:, cols]
+        if ((bias != 0) & used).any():
             continue
         window = (t >= f.t0_s) & (t < f.t1_s)
+        # "G10 is never used" / "no GAL satellite is ever used"
+        who, never, not_ = ((f.sat, "never", "not ") if f.system is None
+                            else (f"no {f.sat} satellite", "ever", ""))
         if not window.any():
             why = (f"its window [{f.t0_s:g}, {f.t1_s:g}) s lies outside the run "
                    f"[0, {t_end:g}] s")
-        elif not truth.used[:, k].any():
-            why = f"{f.sat} is never used (below the mask, unhealthy or restricted)"
-        elif not truth.used[window, k].any():
-            why = f"{f.sat} is not used while the fault is on"
+        elif cols.size == 0:
+            why = f"this run has no {f.sat} satellite"
+        elif not used.any():
+            why = f"{who} is {never} used (below the mask, unhealthy or restricted)"
+        elif not used[window].any():
+            why = f"{who} is {not_}used while the fault is on"
         else:
             why = "its bias is 0 at every used epoch"
-        out.append(f"warning: fault {f.sat} {f.kind} from t = {f.t0_s:g} s never acts: {why}")
+        out.append(f"warning: fault {f.target} {f.kind} from t = {f.t0_s:g} s never acts: "
+                   f"{why}")
     return out
 
 

@@ -43,7 +43,16 @@ class Measurements:
     sigma_baro_m : its 1-sigma (m) or None.
     notes : remarks about the data for the user (e.g. satellites of a recording left out).
     error_model : the error model that set ``sigma_m`` (``"uniform"``, ``"elevation"``,
-        ``"rtklib"``, ``"broadcast"``, ``"measured"``), or None when not named.
+        ``"rtklib"``, ``"broadcast"``, ``"measured"``, ``"araim"``), or None when not named.
+    ism : the scenario's ARAIM integrity support message
+        (:class:`~raimcore.measure.error_models.Ism`; None: MAAST's example) and
+        ``user_model`` its airborne user model (``"add"`` or ``"ed259a"``): what the
+        ``araim`` algorithm builds C_int and C_acc from.
+    clock_reset : (E,) bool, True where the receiver says its clock restarted since the
+        previous epoch (:attr:`raimcore.sky.Sky.clock_reset`: a phone's hardware-clock
+        discontinuity, a RINEX "power failure" flag); all False by default (simulated
+        skies). The filters re-initialise their clock offsets there instead of testing the
+        clock's jump (:func:`raimcore.algorithms.ekf.run_ekf`).
     """
 
     t_s: np.ndarray
@@ -66,6 +75,14 @@ class Measurements:
     sigma_baro_m: float | None = None
     notes: tuple[str, ...] = ()
     error_model: str | None = None
+    ism: Any = None
+    user_model: str = "add"
+    clock_reset: np.ndarray | None = None
+
+    def __post_init__(self):
+        flags = (np.zeros(len(self.t_s), dtype=bool) if self.clock_reset is None
+                 else np.asarray(self.clock_reset, dtype=bool))
+        object.__setattr__(self, "clock_reset", flags)
 
     @property
     def n_epochs(self) -> int:
@@ -89,6 +106,10 @@ class Measurements:
         rows = np.asarray(rows, dtype=int)
         changes = {name: getattr(self, name)[rows] for name in SAT_AXIS_FIELDS}
         changes["t_s"] = self.t_s[rows]
+        # A restart anywhere since the previous row taken (rows in time order).
+        n_resets = np.concatenate([[0], np.cumsum(self.clock_reset)])
+        changes["clock_reset"] = np.diff(n_resets[rows + 1],
+                                         prepend=n_resets[rows[:1]]) != 0
         if self.baro_alt_m is not None:
             changes["baro_alt_m"] = self.baro_alt_m[rows]
         return dataclasses.replace(self, **changes)

@@ -25,9 +25,16 @@ the elevation is floored at 2 degrees as in :func:`raimcore.sky.spp.elevation_si
 ``measured``
     ``a_s + b_s / sin el`` per system, fitted on the recording itself
     (:func:`fit_elevation_sigma`, :func:`measured_fits`); recordings only.
+``araim``
+    ``sigma^2 = sigma_URE^2 + sigma_tropo^2 + sigma_user^2``: ARAIM's nominal accuracy
+    model (``../shared/ARAIM.md`` section 2, ``C_acc``) with the scenario's integrity
+    support message (key ``ism``, :class:`Ism`) and airborne user model (key
+    ``user_model``, :func:`araim_user_sigma`). A simulation draws its noise with this
+    sigma; the ``araim`` algorithm bounds it with ``sigma_URA`` (``C_int``,
+    :func:`araim_sigmas`).
 ``auto`` (the default)
-    ``uniform`` on a simulated sky, ``elevation`` on a recording: what every run did
-    before the key existed.
+    ``araim`` when the algorithm is ``araim``; otherwise ``uniform`` on a simulated sky,
+    ``elevation`` on a recording: what every run did before the key existed.
 
 ``sigma_m`` sets the scale of ``uniform`` and ``elevation`` only; the other models set
 every sigma themselves.
@@ -35,6 +42,7 @@ every sigma themselves.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -48,10 +56,14 @@ from .errors import clock_free_errors
 __all__ = ["ERROR_MODELS", "resolve_model", "uniform_sigma", "elevation_sigma",
            "rtklib_sigma", "tropo_sigma", "user_sigma", "broadcast_sigma", "ElevationFit",
            "fit_elevation_sigma", "measured_fits", "model_sigma", "URA_DEFAULT_M",
-           "RTKLIB_EFACT", "MEASURED_BIN_EDGES_DEG"]
+           "RTKLIB_EFACT", "MEASURED_BIN_EDGES_DEG", "USER_MODELS", "IsmEntry", "Ism",
+           "MAAST_ISM", "parse_ism", "araim_user_sigma", "araim_sigmas",
+           "GAL_USER_SIGMA_M", "ism_help", "ISM_FIELDS"]
 
 #: The choices of the scenario key ``error_model`` (module doc).
-ERROR_MODELS = ("auto", "uniform", "elevation", "rtklib", "broadcast", "measured")
+ERROR_MODELS = ("auto", "uniform", "elevation", "rtklib", "broadcast", "measured", "araim")
+#: The choices of the scenario key ``user_model`` (ARAIM's airborne multipath + noise).
+USER_MODELS = ("add", "ed259a")
 
 #: Lowest elevation a model is evaluated at (rad): as :func:`~raimcore.sky.spp.elevation_sigma`.
 EL_FLOOR_RAD = math.radians(2.0)
@@ -90,10 +102,13 @@ MEASURED_ITERATIONS = 3
 MAD_TO_SIGMA = 1.4826
 
 
-def resolve_model(name: str, recorded: bool) -> str:
-    """The model ``auto`` stands for (``elevation`` on a recording, else ``uniform``);
-    any other name unchanged."""
+def resolve_model(name: str, recorded: bool, algorithm: str | None = None) -> str:
+    """The model ``auto`` stands for (``araim`` under the ``araim`` algorithm, else
+    ``elevation`` on a recording and ``uniform`` on a simulated sky); any other name
+    unchanged."""
     if name == "auto":
+        if algorithm == "araim":
+            return "araim"
         return "elevation" if recorded else "uniform"
     return name
 
@@ -165,6 +180,236 @@ def broadcast_sigma(el_rad, ura_m) -> np.ndarray:
     (Klobuchar) is not part of this (dual-frequency) model."""
     ura = np.asarray(ura_m, dtype=float)
     return np.sqrt(ura * ura + tropo_sigma(el_rad) ** 2 + user_sigma(el_rad) ** 2)
+
+
+# -- ARAIM: the integrity support message and the nominal user model (ARAIM.md sections 1, 2)
+
+#: Airborne multipath + noise of the Galileo E1/E5a iono-free user (m) at the elevations
+#: 5, 10, ..., 90 deg, linearly interpolated (ARAIM.md section 2; B2012 / the ADD).
+GAL_USER_SIGMA_M = (0.4529, 0.3553, 0.3063, 0.2638, 0.2593, 0.2555, 0.2504, 0.2438, 0.2396,
+                    0.2359, 0.2339, 0.2302, 0.2295, 0.2278, 0.2297, 0.2310, 0.2274, 0.2277)
+_GAL_USER_EL_DEG = tuple(float(x) for x in range(5, 95, 5))
+
+#: The per-system fields of the ISM: (name, unit, lo, hi, help), the one declaration that
+#: the parser, the messages and the docs read.
+ISM_FIELDS = (
+    ("sigma_ura_m", "m", 0.0, 1.0e3, "integrity 1-sigma of the orbit and clock error"),
+    ("sigma_ure_m", "m", 0.0, 1.0e3, "accuracy (continuity) 1-sigma of the orbit and clock "
+                                     "error"),
+    ("b_nom_m", "m", 0.0, 1.0e2, "nominal bias bound, integrity"),
+    ("b_cont_m", "m", 0.0, 1.0e2, "nominal bias bound, accuracy and continuity"),
+    ("p_sat", "", 0.0, 1.0e-3, "prior probability of a satellite fault (above 1e-3 the "
+                               "fault modes to monitor grow combinatorially)"),
+    ("p_const", "", 0.0, 1.0e-2, "prior probability of a constellation-wide fault"),
+    ("mfd_sat_s", "s", 0.0, 1.0e7, "mean duration of a satellite fault (with the option "
+                                   "t_exp_s)"),
+    ("mfd_const_s", "s", 0.0, 1.0e7, "mean duration of a constellation fault"),
+)
+_ISM_NAMES = tuple(f[0] for f in ISM_FIELDS)
+
+
+@dataclass(frozen=True)
+class IsmEntry:
+    """The ISM of one constellation (ARAIM.md section 1): every satellite of it gets
+    ``sigma_ura_m``, ``sigma_ure_m``, ``b_nom_m``, ``b_cont_m``, ``p_sat``; the
+    constellation ``p_const``. ``mfd_*_s`` (mean fault durations) set the exposure factor
+    ``tau = t_exp / MFD`` of the ``araim`` option ``t_exp_s`` (0 in the LPV-200 baseline).
+    """
+
+    sigma_ura_m: float
+    sigma_ure_m: float
+    b_nom_m: float
+    b_cont_m: float
+    p_sat: float
+    p_const: float
+    mfd_sat_s: float
+    mfd_const_s: float
+
+
+#: MAAST's example ISD (ARAIM.md section 10; ``maast_for_araim_2`` ``main_maast_araim.m``,
+#: "based on current draft of ICAO Annex 10 default ISD (June 2024)"; P = rate x MFD):
+#: GPS sigma_URA 2.4 m, sigma_URE 2.4 m, b_nom 0, P_sat 1e-5, P_const 1e-8, MFD 1 h / 1 h;
+#: Galileo 6 m, 4 m, 0, 3e-5, 2e-4, MFD 1.5 h / 2 h; GLONASS (same file) 9 m, 8 m, 0,
+#: 3.4e-5/h x 3 h = 1.02e-4, 1e-5/h x 10 h = 1e-4, MFD 3 h / 10 h; b_cont 0 (absent).
+#: MAAST gives BeiDou sigma_URA = inf (not used): BeiDou takes the Galileo values here, an
+#: assumption of this project (a constellation fault is then a monitored mode).
+#: These are H-ARAIM-grade values: with them the vertical LPV-200 criteria are not met
+#: (VPL about 45 m, sigma_acc about 4 m for GPS + Galileo).
+MAAST_ISM_VALUES = {
+    "GPS": IsmEntry(2.4, 2.4, 0.0, 0.0, 1e-5, 1e-8, 3600.0, 3600.0),
+    "GAL": IsmEntry(6.0, 4.0, 0.0, 0.0, 3e-5, 2e-4, 5400.0, 7200.0),
+    "BDS": IsmEntry(6.0, 4.0, 0.0, 0.0, 3e-5, 2e-4, 5400.0, 7200.0),
+    "GLO": IsmEntry(9.0, 8.0, 0.0, 0.0, 1.02e-4, 1e-4, 10800.0, 36000.0),
+}
+#: Systems of the ISM, in the order of the scenario's systems key.
+ISM_SYSTEMS = ("GPS", "BDS", "GAL", "GLO")
+_SYSTEM_ALIASES = {"GALILEO": "GAL", "GLONASS": "GLO", "BEIDOU": "BDS", "NAVSTAR": "GPS",
+                   "E": "GAL", "R": "GLO", "C": "BDS", "G": "GPS"}
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x))  # exact, and a TOML float
+
+
+@dataclass(frozen=True)
+class Ism:
+    """An integrity support message: one :class:`IsmEntry` per system (GPS, BDS, GAL,
+    GLO), the value of the scenario key ``ism``.
+
+    ``ism["GAL"]`` gives a system's entry; :meth:`to_dict` the TOML table
+    (``{GPS = {sigma_ura_m = 2.4, ...}, ...}``) that :func:`parse_ism` reads back;
+    ``str()`` is ``maast`` for :data:`MAAST_ISM`, else the entries that differ from it.
+    """
+
+    entries: tuple[tuple[str, IsmEntry], ...]
+
+    def __getitem__(self, system: str) -> IsmEntry:
+        return dict(self.entries)[system]
+
+    def to_dict(self) -> dict[str, dict[str, float]]:
+        return {s: dataclasses.asdict(e) for s, e in self.entries}
+
+    def per_sat(self, systems, sys_idx) -> dict[str, np.ndarray]:
+        """Each field as a per-satellite array ``(S,)`` (``sys_idx`` into ``systems``)."""
+        rows = [self[systems[j]] for j in np.asarray(sys_idx, dtype=int)]
+        return {n: np.array([getattr(r, n) for r in rows], dtype=float) for n in _ISM_NAMES}
+
+    def per_system(self, systems) -> dict[str, np.ndarray]:
+        """Each field as a per-system array ``(len(systems),)``."""
+        return {n: np.array([getattr(self[s], n) for s in systems], dtype=float)
+                for n in _ISM_NAMES}
+
+    def __str__(self) -> str:
+        base = dict(MAAST_ISM.entries)
+        diff = []
+        for s, e in self.entries:
+            changed = [f"{n} = {_fmt(getattr(e, n))}" for n in _ISM_NAMES
+                       if getattr(e, n) != getattr(base[s], n)]
+            if changed:
+                diff.append(f"{s} = {{{', '.join(changed)}}}")
+        return "maast" if not diff else "{" + ", ".join(diff) + "}"
+
+
+MAAST_ISM = Ism(tuple((s, MAAST_ISM_VALUES[s]) for s in ISM_SYSTEMS))
+
+
+def parse_ism(name: str, value) -> Ism:
+    """The scenario key ``ism``: ``"maast"`` (MAAST's example, :data:`MAAST_ISM`) or a table
+    ``{GAL = {sigma_ura_m = 4.0, p_const = 1e-4}, ...}`` whose values replace those of the
+    MAAST example (systems and fields not given keep it); an :class:`Ism` unchanged.
+
+    Raises
+    ------
+    SchemaError
+        An unknown system or field (with a "did you mean"), or a value outside its range
+        (:data:`ISM_FIELDS`); one line naming ``ism.SYSTEM.field``.
+    """
+    from ..schema import SchemaError, coerce_float, did_you_mean
+
+    if isinstance(value, Ism):
+        return value
+    if isinstance(value, str):
+        if value.strip().lower() == "maast":
+            return MAAST_ISM
+        raise SchemaError(f"{name} must be \"maast\" or a table such as {{GAL = "
+                          f"{{sigma_ura_m = 4.0}}}}, got {value!r}")
+    if not isinstance(value, dict):
+        raise SchemaError(f"{name} must be \"maast\" or a table of systems, e.g. {{GAL = "
+                          f"{{sigma_ura_m = 4.0}}}}, got {value!r}"[:200])
+    out = {s: dataclasses.asdict(e) for s, e in MAAST_ISM.entries}
+    bounds = {f[0]: f for f in ISM_FIELDS}
+    for system, fields_ in value.items():
+        if system not in out:
+            alias = _SYSTEM_ALIASES.get(str(system).upper())
+            hint = f" (did you mean {alias!r}?)" if alias else did_you_mean(str(system), out)
+            raise SchemaError(f"{name}: unknown system {system!r}; systems: "
+                              f"{', '.join(ISM_SYSTEMS)}{hint}")
+        if isinstance(fields_, IsmEntry):
+            fields_ = dataclasses.asdict(fields_)
+        if not isinstance(fields_, dict):
+            raise SchemaError(f"{name}.{system} must be a table of ISM values, e.g. "
+                              f"{{sigma_ura_m = 4.0}}, got {fields_!r}"[:200])
+        for field_name, v in fields_.items():
+            if field_name not in bounds:
+                raise SchemaError(f"{name}.{system}: unknown field {field_name!r}; fields: "
+                                  f"{', '.join(_ISM_NAMES)}"
+                                  f"{did_you_mean(str(field_name), bounds)}")
+            _, unit, lo, hi, _ = bounds[field_name]
+            out[system][field_name] = coerce_float(f"{name}.{system}.{field_name}", v, lo,
+                                                   hi, unit=unit)
+    return Ism(tuple((s, IsmEntry(**out[s])) for s in ISM_SYSTEMS))
+
+
+def ism_help() -> str:
+    """The fields of the ``ism`` key and the default, in words (the key's help)."""
+    fields_ = ", ".join(f"{n} [{u}]" if u else n for n, u, *_ in ISM_FIELDS)
+    g, e, r = (MAAST_ISM_VALUES[s] for s in ("GPS", "GAL", "GLO"))
+    return (f"ARAIM integrity support message per system, {{GPS = {{...}}, GAL = {{...}}}}, "
+            f"fields {fields_}; given values replace MAAST's example (\"maast\": sigma_URA "
+            f"GPS {g.sigma_ura_m:g} / GAL {e.sigma_ura_m:g} m, sigma_URE {g.sigma_ure_m:g} / "
+            f"{e.sigma_ure_m:g} m, b 0, P_sat {g.p_sat:g} / {e.p_sat:g}, P_const "
+            f"{g.p_const:g} / {e.p_const:g}, MFD sat {g.mfd_sat_s:g} / {e.mfd_sat_s:g} s, "
+            f"const {g.mfd_const_s:g} / {e.mfd_const_s:g} s; GLO {r.sigma_ura_m:g}, "
+            f"{r.sigma_ure_m:g} m, {r.p_sat:g}, {r.p_const:g}; BDS as GAL, assumed)")
+
+
+def araim_user_sigma(el_rad, system, user_model: str = "add") -> np.ndarray:
+    """Airborne multipath + noise 1-sigma (m) of the dual-frequency ARAIM user
+    (ARAIM.md section 2), ``el_rad`` any shape (floored at 2 deg, as every model here).
+
+    ``user_model``:
+
+    ``"add"``
+        B2012 / the ADD: GPS ``2.5883 sqrt(sigma_MP^2 + sigma_N^2)`` (:func:`user_sigma`
+        with the L1/L5 iono-free factor); Galileo the E1/E5a table
+        :data:`GAL_USER_SIGMA_M`, linear in the elevation in degrees (held at its ends).
+        BeiDou and GLONASS take the GPS curve (as MAAST's ``usrprocess_araim.m`` does).
+    ``"ed259a"``
+        MAAST v5 (``af_cnmp_259a.m`` x GAMMA_L1_L5 + ``sig_uire_df``), every system:
+        ``sigma^2 = 0.4^2 + (0.34 + 0.40 exp(-theta/14))^2 + (40/(261 + theta^2) + 0.018)^2``.
+
+    >>> print(f"{float(araim_user_sigma(math.radians(90.0), 'GAL')):.4f}")
+    0.2277
+    """
+    s = _sin_el(el_rad)
+    theta = np.degrees(np.arcsin(s))
+    if user_model == "ed259a":
+        cnmp = 0.34 + 0.40 * np.exp(-theta / 14.0)
+        iono = 40.0 / (261.0 + theta * theta) + 0.018
+        return np.sqrt(0.4**2 + cnmp * cnmp + iono * iono)
+    if user_model != "add":
+        raise ValueError(f"user_model must be one of {', '.join(USER_MODELS)}, got "
+                         f"{user_model!r}")
+    if system == "GAL":
+        return np.interp(theta, _GAL_USER_EL_DEG, GAL_USER_SIGMA_M)
+    return user_sigma(el_rad, iono_free=True)
+
+
+def araim_sigmas(el_rad, systems, sys_idx, ism: Ism = MAAST_ISM,
+                 user_model: str = "add") -> tuple[np.ndarray, np.ndarray]:
+    """ARAIM's nominal 1-sigmas (m) of every pseudorange, ARAIM.md section 2.
+
+    Parameters
+    ----------
+    el_rad : (..., S) elevations; ``sys_idx`` (S,) into ``systems`` (system names).
+    ism : the integrity support message; ``user_model`` ``"add"`` or ``"ed259a"``
+        (:func:`araim_user_sigma`).
+
+    Returns
+    -------
+    sigma_int_m, sigma_acc_m : (..., S), ``sqrt(sigma_URA^2 + sigma_tropo^2 +
+    sigma_user^2)`` (the diagonal of C_int) and the same with ``sigma_URE`` (C_acc).
+    """
+    el = np.asarray(el_rad, dtype=float)
+    sys_idx = np.asarray(sys_idx, dtype=int)
+    local = np.zeros(el.shape)
+    for j, name in enumerate(systems):
+        col = sys_idx == j
+        if col.any():
+            local[..., col] = araim_user_sigma(el[..., col], name, user_model) ** 2
+    local += tropo_sigma(el) ** 2
+    p = ism.per_sat(systems, sys_idx)
+    return (np.sqrt(p["sigma_ura_m"] ** 2 + local), np.sqrt(p["sigma_ure_m"] ** 2 + local))
 
 
 @dataclass(frozen=True)
@@ -304,12 +549,15 @@ def measured_fits(err_m, valid, el_rad, sys_idx, systems) -> tuple[dict[int, Ele
     return fits, msgs
 
 
-def model_sigma(model: str, sky, used, sigma_m: float) -> tuple[np.ndarray, tuple[str, ...]]:
+def model_sigma(model: str, sky, used, sigma_m: float, *, ism: Ism = None,
+                user_model: str = "add") -> tuple[np.ndarray, tuple[str, ...]]:
     """Per-pseudorange 1-sigma (E, S) of ``model`` (resolved: not ``auto``) on ``sky``.
 
     ``used`` (E, S) are the measurements the receiver uses (the ``measured`` fit and the
     notes look at these only); ``sigma_m`` the scenario's scale (``uniform``,
-    ``elevation``). Returns the sigmas and notes for the user.
+    ``elevation``); ``ism`` (None: :data:`MAAST_ISM`) and ``user_model`` those of
+    ``araim``, whose sigma is the accuracy model (``sigma_URE``, :func:`araim_sigmas`).
+    Returns the sigmas and notes for the user.
 
     Raises
     ------
@@ -330,11 +578,19 @@ def model_sigma(model: str, sky, used, sigma_m: float) -> tuple[np.ndarray, tupl
                      f"= F sqrt(0.3^2 + 0.3^2/sin^2 el) m, F: {fs}; sigma_m is not used",)
     if model == "broadcast":
         return _broadcast(sky, used, names)
+    if model == "araim":
+        ism = MAAST_ISM if ism is None else ism
+        _, acc = araim_sigmas(el, sky.systems, sky.sys_idx, ism, user_model)
+        present = [sky.systems[j] for j in sorted(set(np.asarray(sky.sys_idx)[used.any(0)]))]
+        ure = ", ".join(f"{n} {ism[n].sigma_ure_m:g} m" for n in present) or "none used"
+        return acc, (f"error model araim (ARAIM.md section 2, accuracy model C_acc): sigma^2 "
+                     f"= sigma_URE^2 + tropo^2 + user({user_model})^2, sigma_URE {ure} "
+                     f"(ism {ism}); sigma_m is not used",)
     if model == "measured":
         if sky.pr_m is None:
             raise ValueError("error_model \"measured\" fits the errors of a recording; a "
-                             "simulated sky has none: choose uniform, elevation, rtklib or "
-                             "broadcast")
+                             "simulated sky has none: choose uniform, elevation, rtklib, "
+                             "broadcast or araim")
         return _measured(sky, used, sigma_m)
     raise ValueError(f"error_model must be one of {', '.join(ERROR_MODELS)}, got {model!r}")
 
