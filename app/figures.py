@@ -613,6 +613,12 @@ def particle_figure(view: RunView) -> PanelFigure:
 SKY_TRACK_POINTS = 120
 
 
+#: Sky-plot marker of each system (a satellite name's first letter), and its legend mark.
+SYSTEM_SYMBOLS = {"G": "circle", "E": "diamond", "C": "square", "R": "triangle-up"}
+SYSTEM_MARKS = {"G": "●", "E": "◆", "C": "■", "R": "▲"}
+SYSTEM_NAMES = {"G": "GPS", "E": "GAL", "C": "BDS", "R": "GLO"}
+
+
 def sky_figure(view: RunView) -> PanelFigure:
     """2D sky plot (polar: azimuth clockwise from north, radius = 90 - elevation): every
     satellite's track over the run (static) and its position and state now (dynamic)."""
@@ -634,6 +640,10 @@ def sky_figure(view: RunView) -> PanelFigure:
                  "hoverinfo": "skip", "showlegend": False})
     states = view.states()
     names = np.asarray(view.sat_names)
+    # The colour is the state; the symbol is the system (a satellite name's letter).
+    symbols = np.array([SYSTEM_SYMBOLS.get(n[:1], "circle") for n in names])
+    letters = sorted({n[:1] for n in names}, key=lambda x: list(SYSTEM_SYMBOLS).index(x)
+                     if x in SYSTEM_SYMBOLS else 99)
 
     def now(i: int) -> tuple[list[dict], dict]:
         i = int(np.clip(i, 0, n_e - 1))
@@ -644,12 +654,14 @@ def sky_figure(view: RunView) -> PanelFigure:
                 "type": "scatterpolar", "r": zen_deg[i, sel], "theta": az_deg[i, sel],
                 "mode": "markers+text", "name": state, "text": names[sel].tolist(),
                 "textposition": "top center", "textfont": {"size": 9},
-                "marker": {"color": rgb(state), "size": 10,
+                "marker": {"color": rgb(state), "size": 10, "symbol": symbols[sel].tolist(),
                            "line": {"color": "white", "width": 1}},
             })
         return traces, {}
 
-    layout = _base_layout("Sky plot (now)", height=380)
+    detail = (", ".join(f"{SYSTEM_MARKS[x]} {SYSTEM_NAMES[x]}" for x in letters
+                        if x in SYSTEM_MARKS) if len(letters) > 1 else None)
+    layout = _base_layout("Sky plot (now)", height=380, detail=detail)
     layout.pop("xaxis")
     layout["polar"] = {
         "radialaxis": {"range": [0, 90], "tickvals": [0, 30, 60, 90],
@@ -658,11 +670,11 @@ def sky_figure(view: RunView) -> PanelFigure:
         "angularaxis": {"rotation": 90, "direction": "clockwise",
                         "tickvals": [0, 90, 180, 270], "ticktext": ["N", "E", "S", "W"]},
     }
-    layout["margin"] = {"l": 30, "r": 30, "t": _TOP_PX[0] + 12, "b": 8}
+    layout["margin"] = {"l": 30, "r": 30, "t": _TOP_PX[1 if detail else 0] + 12, "b": 8}
     layout["legend"] = dict(layout["legend"], y=-0.06)
     ring = np.linspace(0.0, 360.0, 73)
     data.append({"type": "scatterpolar", "r": np.full(ring.shape, 90.0 - view.mask_deg),
                  "theta": ring, "mode": "lines", "name": "mask", "hoverinfo": "skip",
-                 "line": {"color": "rgba(220,50,50,0.6)", "dash": "dash", "width": 1}})
+                 "line": {"color": "rgba(140,80,230,0.8)", "dash": "dash", "width": 1}})
     return PanelFigure("sky", "Sky plot", data, layout, dynamic=now, t_s=view.t_s,
                        marker=False)

@@ -24,7 +24,10 @@ installed once in the page (:data:`HELPER_JS`) applies it:
 - viser may redraw a figure later from the JSON it holds (a resize, a figure re-sent by a
   recompute): the script wraps ``Plotly.react`` so that every redraw is followed by the
   latest time update, unless the figure was made at that time or later
-  (``layout.meta.seq``).
+  (``layout.meta.seq``);
+- a plot already drawn but scrolled out of view is redrawn when it comes into view again
+  (an ``IntersectionObserver``), so that a recompute first redraws what is on screen; a
+  new size is drawn at once (the page's layout never changes while scrolling).
 
 The update travels as the content of a hidden HTML element (:meth:`PageScript.attach`):
 viser applies a batch of GUI messages at once, while a batch holding 3D-scene messages
@@ -231,11 +234,35 @@ HELPER_JS = r"""
                              attributeFilter: ['aria-valuenow']});
   const carrier = document.querySelector(`[${attr}]`);
   if (carrier) R.read(carrier);
-  // viser redraws a plot from its JSON (a new figure, a resize): then the latest time.
-  P.react = function (gd, ...rest) {
-    const out = R.react(gd, ...rest);
+  // A plot scrolled out of view is redrawn when it comes back into view, not while the
+  // visible ones are being drawn (a recompute re-sends every figure at once).
+  R.visible = new WeakMap();
+  R.deferred = new WeakMap();
+  R.redraw = (gd, args) => {
+    const out = R.react(gd, ...args);
     const after = () => { try { R.apply(gd); } catch (e) { console.warn(e); } return gd; };
     return out && out.then ? out.then(after) : after();
+  };
+  R.seen = new IntersectionObserver(entries => {
+    for (const e of entries) {
+      R.visible.set(e.target, e.isIntersecting);
+      const args = e.isIntersecting && R.deferred.get(e.target);
+      if (args) { R.deferred.delete(e.target); R.redraw(e.target, args); }
+    }
+  });
+  // viser redraws a plot from its JSON (a new figure, a resize): then the latest time.
+  P.react = function (gd, ...rest) {
+    const fl = gd && gd._fullLayout, lay = rest[1] || {};
+    if (fl && R.visible.get(gd) === false && lay.width === fl.width &&
+        lay.height === fl.height) {
+      // Drawn before, out of view now, same size (the page keeps its layout): drawn
+      // when it is seen again.
+      R.deferred.set(gd, rest);
+      return Promise.resolve(gd);
+    }
+    if (gd) R.deferred.delete(gd);
+    if (gd && !R.visible.has(gd)) { R.visible.set(gd, true); R.seen.observe(gd); }
+    return R.redraw(gd, rest);
   };
 })(%s, %s, %s);
 """

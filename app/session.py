@@ -201,9 +201,10 @@ def _camera_aspect(camera) -> float | None:
 
 
 def fault_label(k: int, f: Fault) -> str:
+    """``"#1 G10 ramp 2 m/s, 120 s..end"``, ``"#2 GAL (constellation) step 20 m, 300 s..end"``."""
     size = f"{f.bias_m:g} m" if f.kind == "step" else f"{f.rate_mps:g} m/s"
     end = "end" if not math.isfinite(f.t1_s) else f"{f.t1_s:g} s"
-    return f"#{k + 1} {f.sat} {f.kind} {size}, {f.t0_s:g} s..{end}"
+    return f"#{k + 1} {f.target} {f.kind} {size}, {f.t0_s:g} s..{end}"
 
 
 @dataclass
@@ -315,7 +316,10 @@ class Session:
         self.fault_controls: dict[str, KeyControl] = {}
         with gui.add_folder("Faults"):
             self.fault_pick = gui.add_dropdown("Fault to edit", [NO_FAULT])
-            self.fault_sat = gui.add_dropdown("Satellite", ["-"])
+            self.fault_sat = gui.add_dropdown(
+                "Satellite", ["-"], hint="a satellite in view, or a system (GPS, GAL, ...): "
+                "a constellation fault on all its satellites, each by the bias x "
+                "sin(elevation)")
             fc = self.fault_controls
             for name, title in FAULT_CONTROLS:
                 key = FAULT_KEYS[name]
@@ -696,6 +700,11 @@ class Session:
         used = np.asarray(data.used).any(axis=0)
         return [n for n, u in zip(data.sat_names, used, strict=True) if u]
 
+    def _fault_targets(self) -> list[str]:
+        """What the Satellite dropdown offers: the visible satellites, then the scenario's
+        systems (a constellation fault)."""
+        return [*self._visible_sats(), *self.scenario.systems]
+
     def _t1_shown(self, t1_s: float) -> float:
         """The fault-end slider's position for ``t1_s``: "until the end" at the run's end."""
         return float(self.scenario.duration_s) if t1_s == math.inf else float(t1_s)
@@ -713,7 +722,7 @@ class Session:
         try:
             labels = [fault_label(k, f) for k, f in enumerate(faults)] or [NO_FAULT]
             self.fault_pick.options = labels
-            visible = self._visible_sats()
+            visible = self._fault_targets()
             for name in ("t0_s", "t1_s"):
                 fc[name].set_usual_range(0.0, float(s.duration_s), float(s.step_s))
             editing = 0 <= self._fault_index < len(faults)
@@ -745,8 +754,9 @@ class Session:
             self._syncing = False
 
     def _refresh_fault_sats(self) -> None:
-        """Offer the satellites visible in the current run (plus the edited fault's)."""
-        visible = self._visible_sats()
+        """Offer the satellites visible in the current run and the scenario's systems
+        (plus the edited fault's satellite)."""
+        visible = self._fault_targets()
         current = self.fault_sat.value
         opts = visible if (current in visible or self._fault_index < 0) else [*visible, current]
         if list(self.fault_sat.options) != opts:

@@ -182,7 +182,7 @@ def test_panel_registry_shows_new_algorithm_outputs_without_dashboard_changes(de
                    mf=rng.normal(size=(e, s)))
     view = figures.RunView(**{**default_view.__dict__, "table": table, "per_sat": per_sat})
     keys = [k for k, _ in panels.panels_for(view)]
-    assert keys == ["detection", "isolation", "errors", "sky", "per_sat", "columns"]
+    assert keys == ["detection", "isolation", "errors", "sky", "stanford", "per_sat", "columns"]
     assert panels.per_sat_keys(view) == ["fault_size_m", "isolability", "llr", "mf"]
     built = dict((k, b(view)) for k, b in panels.panels_for(view, "mf"))
     assert built["per_sat"].key == "per_sat:mf"
@@ -336,10 +336,11 @@ def test_fault_controls_edit_add_and_remove_faults(session):
     t = s.result.measurements.t_s
     assert np.all(bias[(t >= 100) & (t < 300)] == 200.0)
     assert "G10 detected at t = 100 s" in s.verdict_md.content
-    # Only visible satellites are offered.
+    # Only visible satellites are offered, and the scenario's systems (constellation faults).
     used = s.result.measurements.used.any(axis=0)
-    offered = set(s.fault_sat.options)
+    offered = set(s.fault_sat.options) - {"GPS"}
     assert offered == {n for n, u in zip(s.result.measurements.sat_names, used, strict=True) if u}
+    assert s.fault_sat.options[-1] == "GPS"
     # Add a second fault, then remove the first.
     s.fault_add.value = True  # buttons: setting value fires on_click like a real click
     _settle(s)
@@ -351,6 +352,54 @@ def test_fault_controls_edit_add_and_remove_faults(session):
     s.fault_remove.value = True
     _settle(s)
     assert [f.sat for f in s.result.scenario.faults] == [second]
+
+
+def test_fault_editor_creates_and_edits_a_constellation_fault(session):
+    """Satellite = a system key: a fault on every satellite of that constellation."""
+    s = session
+    s.open_scenario(load_scenario("default", systems=["GPS", "GAL"], sigma_m=1.0,
+                                  faults=[]))
+    _settle(s)
+    assert tuple(s.fault_sat.options[-2:]) == ("GPS", "GAL")
+    s.fault_add.value = True  # a new satellite fault, made a constellation fault
+    _settle(s)
+    s.fault_sat.value = "GAL"
+    _settle(s)
+    s.fault_kind.value = "step"
+    s.fault_bias.value = 20.0
+    s.fault_t0.value = 300.0
+    _settle(s)
+    f = s.result.scenario.faults[0]
+    assert (f.sat, f.system, f.kind, f.bias_m, f.t0_s) == ("GAL", "GAL", "step", 20.0, 300.0)
+    assert s.fault_pick.value == "#1 GAL (constellation) step 20 m, 300 s..end"
+    assert s.fault_sat.value == "GAL"
+    data, truth = s.result.measurements, s.result.truth
+    gal = np.array([n.startswith("E") for n in data.sat_names])
+    on = data.t_s >= 300.0
+    assert np.array_equal(truth.faulted[:, gal], on[:, None] & data.used[:, gal])
+    assert "Constellation fault on GAL (all its satellites) detected" in s.verdict_md.content
+    # The 3D view cues every faulted Galileo satellite.
+    i = int(np.argmax(on)) + 10
+    s.time.value = float(data.t_s[i])
+    _settle(s)
+    assert s.scene.i_epoch == i
+    cued = set(s.scene.fault_cue_shown())
+    assert cued == {n for n, x in zip(data.sat_names, truth.faulted[i], strict=True) if x}
+    assert len(cued) >= 5 and all(n.startswith("E") for n in cued)
+    # Edit it: a ramp that ends, then back to one satellite.
+    s.fault_kind.value = "ramp"
+    s.fault_t1.value = 450.0
+    _settle(s)
+    f = s.result.scenario.faults[0]
+    assert (f.sat, f.kind, f.t1_s) == ("GAL", "ramp", 450.0)
+    assert s.fault_pick.value.startswith("#1 GAL (constellation) ramp ")
+    t, faulted = s.result.measurements.t_s, s.result.truth.faulted
+    assert faulted[(t > 300.0) & (t < 450.0)][:, gal].any(-1).all()
+    assert not faulted[t >= 450.0][:, gal].any()
+    s.fault_sat.value = "E01"
+    _settle(s)
+    assert s.result.scenario.faults[0].sat == "E01"
+    assert s.fault_pick.value.startswith("#1 E01 ramp ")
 
 
 def test_mask_change_refreshes_the_offered_satellites(session):
@@ -649,3 +698,19 @@ def test_dashboard_refuses_a_missing_lessons_folder(tmp_path, capsys):
     assert main(["dashboard", "--lessons", str(tmp_path / "nope"), "--port", "0"]) == 2
     err = capsys.readouterr().err
     assert "--lessons" in err and "not a folder" in err and "Traceback" not in err
+
+
+def test_sky_plot_marks_each_system_with_its_own_symbol_and_the_mask_like_the_3d_view():
+    from app.session import run_view
+
+    res = run_scenario(load_scenario("default", systems=["GPS", "GAL", "GLO"],
+                                     duration_s=20.0, faults=[]))
+    fig = figures.sky_figure(run_view(res))
+    traces, _ = fig.dynamic(0)
+    shown = {(n[:1], s) for tr in traces
+             for n, s in zip(tr["text"], tr["marker"]["symbol"], strict=True)}
+    assert {letter for letter, _ in shown} == {"G", "E", "R"}
+    assert shown <= {("G", "circle"), ("E", "diamond"), ("R", "triangle-up")}
+    assert "◆ GAL" in json.dumps(fig.layout["title"], ensure_ascii=False)
+    mask = next(tr for tr in fig.data if tr["name"] == "mask")
+    assert mask["line"]["color"].startswith("rgba(140,80,230")  # scene.MASK_RGB

@@ -9,6 +9,13 @@ dashboard verdict and Monte Carlo read the summary.
 Rules, stated once:
 
 - *faulted* epochs: a fault acts on a used satellite (:attr:`raimcore.measure.Truth.faulted`);
+  a constellation fault (:mod:`raimcore.measure.faults`) marks every used satellite of its
+  system. *Detection*: an alarm at a faulted epoch, whatever the fault;
+- *correct isolation*: the excluded satellites are exactly the faulted ones (the
+  ``excluded`` and ``faulty_truth`` columns equal). For a constellation fault that is
+  every used satellite of the constellation and no other: excluding only some of them
+  leaves faulted measurements in the solution. An algorithm that excludes a constellation
+  (ARAIM) reports its used satellites in ``excluded``;
 - *fault memory*: epochs after a fault that a windowed algorithm still holds
   (:func:`in_fault_memory`); neither faulted nor fault-free;
 - *unavailable* epochs (too few satellites, singular geometry) carry NaN positions and enter
@@ -40,7 +47,8 @@ from ..measure.data import Measurements, Truth
 from .table import ResultTable
 
 __all__ = ["make_table", "summarize", "Summary", "Rate", "in_fault_memory", "ResultTable",
-           "false_alarm_check"]
+           "false_alarm_check", "stanford_esa", "stanford_from_table",
+           "stanford_from_result", "stanford_from_csv", "StanfordResult", "StanfordDiagram"]
 
 
 @dataclass(frozen=True)
@@ -372,3 +380,14 @@ def _summarize_pl(table: ResultTable) -> dict[str, Any]:
             out["baro_vpl_lower_share"] = float(np.mean(vpl[both] < vpl0[both]))
             out["baro_hpl_lower_share"] = float(np.mean(hpl[both] < hpl0[both]))
     return out
+
+
+# The Stanford-ESA diagram (its results give their shares as Rate, defined above).
+from .stanford import (  # noqa: E402
+    StanfordDiagram,
+    StanfordResult,
+    stanford_esa,
+    stanford_from_csv,
+    stanford_from_result,
+    stanford_from_table,
+)
