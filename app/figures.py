@@ -678,3 +678,96 @@ def sky_figure(view: RunView) -> PanelFigure:
                  "line": {"color": "rgba(140,80,230,0.8)", "dash": "dash", "width": 1}})
     return PanelFigure("sky", "Sky plot", data, layout, dynamic=now, t_s=view.t_s,
                        marker=False)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``(i0, i1)`` index ranges (``i1`` exclusive) of the runs of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+
+
+def _araim_limit(name: str, default: float) -> float:
+    """An LPV-200 limit as the ``araim`` option declares its default (``emt_max_m``,
+    ``sigma_acc_max_m``); ``default`` when the algorithm is not registered."""
+    try:
+        from raimcore import algorithms
+
+        for opt in algorithms.get("araim").options:
+            if opt.name == name:
+                return float(opt.default)
+    except (KeyError, AttributeError, ValueError):
+        pass
+    return default
+
+
+def araim_figure(view: RunView) -> PanelFigure:
+    """ARAIM protection levels over time (ARAIM.md sections 7, 8 and 11): VPL and HPL
+    against VAL and HAL (top), the effective monitor threshold (EMT) and the vertical
+    accuracy sigma against their LPV-200 limits (bottom); the epochs that fail any of the
+    four LPV-200 criteria (column ``available``) shaded grey.
+
+    The EMT and sigma_acc limits drawn are the ``araim`` option defaults (15 m and 1.87 m);
+    the shading reads the run's own ``available`` column, so it follows the options the
+    run used. Each trace's ``meta.column`` names the table column it draws."""
+    t = view.t_s
+    tx = time_axis(t)
+
+    def col(name: str) -> np.ndarray:
+        arr = view.column(name)
+        return np.where(np.isfinite(arr), arr, np.nan)
+
+    emt_max = _araim_limit("emt_max_m", 15.0)
+    acc_max = _araim_limit("sigma_acc_max_m", 1.87)
+    data = [
+        {"type": "scatter", **tx, "y": col("vpl_m"), "mode": "lines", "name": "VPL",
+         "meta": {"column": "vpl_m"},
+         "line": {"color": "#8c564b", "width": 1.6}, "xaxis": "x", "yaxis": "y"},
+        {"type": "scatter", **tx, "y": col("hpl_m"), "mode": "lines", "name": "HPL",
+         "meta": {"column": "hpl_m"},
+         "line": {"color": "#9467bd", "width": 1.4}, "xaxis": "x", "yaxis": "y"},
+        {"type": "scatter", **tx, "y": col("emt_m"), "mode": "lines", "name": "EMT",
+         "meta": {"column": "emt_m"},
+         "line": {"color": "#1f5eea", "width": 1.4}, "xaxis": "x", "yaxis": "y2"},
+    ]
+    if "sigma_acc_m" in view.table:
+        data.append({"type": "scatter", **tx, "y": col("sigma_acc_m"), "mode": "lines",
+                     "name": "σ_acc", "meta": {"column": "sigma_acc_m"},
+                     "line": {"color": "#2ca02c", "width": 1.4},
+                     "xaxis": "x", "yaxis": "y2"})
+
+    def hline(y: float, yref: str, color: str) -> dict:
+        return {"type": "line", "xref": "paper", "yref": yref, "x0": 0, "x1": 1, "y0": y,
+                "y1": y, "line": {"color": color, "dash": "dash", "width": 1}}
+
+    def label(y: float, yref: str, text: str, color: str) -> dict:
+        return {"xref": "paper", "yref": yref, "x": 1.0, "y": y, "text": text,
+                "showarrow": False, "xanchor": "right", "yanchor": "bottom",
+                "font": {"size": 9, "color": color}}
+
+    shapes = _fault_windows(view)
+    if "available" in view.table:
+        avail = np.asarray(view.table["available"], dtype=bool)
+        for i0, i1 in _runs(~avail):
+            shapes.append({"type": "rect", "xref": "x", "yref": "paper",
+                           "x0": float(t[i0]), "x1": float(t[i1 - 1]), "y0": 0, "y1": 1,
+                           "line": {"width": 0}, "fillcolor": "rgba(120,120,120,0.13)",
+                           "layer": "below", "name": "unavailable"})
+    shapes += [hline(view.val_m, "y", "#8c564b"), hline(view.hal_m, "y", "#9467bd"),
+               hline(emt_max, "y2", "#1f5eea"), hline(acc_max, "y2", "#2ca02c")]
+    annotations = [label(view.val_m, "y", f"VAL {view.val_m:g}", "#8c564b"),
+                   label(view.hal_m, "y", f"HAL {view.hal_m:g}", "#9467bd"),
+                   label(emt_max, "y2", f"EMT max {emt_max:g}", "#1f5eea"),
+                   label(acc_max, "y2", f"σ_acc max {acc_max:g}", "#2ca02c")]
+    avail_col = view.table.get("available")
+    share = (f"{100 * float(np.mean(np.asarray(avail_col, dtype=bool))):.0f}%"
+             if avail_col is not None and len(t) else "n/a")
+    layout = _base_layout(
+        "ARAIM protection levels", height=400,
+        detail=f"LPV-200 available {share}; grey: not",
+        xaxis={"ticksuffix": " s", "automargin": True, "anchor": "y2"},
+        yaxis={"title": {"text": "PL (m)"}, "domain": [0.5, 1.0], "rangemode": "tozero"},
+        yaxis2={"title": {"text": "EMT, σ_acc (m)"}, "domain": [0.0, 0.4],
+                "rangemode": "tozero"},
+        shapes=shapes)
+    layout["annotations"] = annotations
+    return PanelFigure("araim", "ARAIM protection levels", data, layout, t_s=t)

@@ -191,8 +191,12 @@ def _first_alarm_after(result: ScenarioResult, t0_s: float, sat: str | None = No
 
 
 def _names_sat(tbl, sat: str) -> np.ndarray:
-    """(E,) bool: the epoch's isolated satellite is ``sat`` or ``sat`` is excluded."""
+    """(E,) bool: the epoch's isolated satellite is ``sat`` or ``sat`` is excluded; ``sat``
+    may name a constellation (``GAL``) that ``araim`` excluded as one fault mode (its
+    column ``excluded_mode``)."""
     excl = np.array([sat in str(x).split("+") for x in tbl["excluded"]], dtype=bool)
+    if "excluded_mode" in tbl:
+        excl |= np.asarray(tbl["excluded_mode"]) == sat
     return (tbl["isolated"] == sat) | excl
 
 
@@ -321,6 +325,15 @@ def _fault_isolability(result: ScenarioResult):
     return float(x.mean()) if x.size else None
 
 
+def _lpv200_availability(result: ScenarioResult) -> Rate | None:
+    """Epochs meeting all four LPV-200 criteria (``araim``'s ``available`` column: VPL,
+    HPL, EMT and sigma_acc within their limits, ARAIM.md section 11)."""
+    if "available" not in result.table:
+        return None
+    avail = np.asarray(result.table["available"], dtype=bool)
+    return Rate(int(avail.sum()), int(avail.size))
+
+
 def _derived_metrics() -> dict[str, Metric]:
     fault = "an injected fault"
     return {m.name: m for m in (
@@ -330,6 +343,8 @@ def _derived_metrics() -> dict[str, Metric]:
                "an algorithm with protection levels (parity, mss)"),
         Metric("vpl_max_m", "largest VPL", "m", _column_max("vpl_m"),
                "an algorithm with protection levels (parity, mss)"),
+        Metric("lpv200_availability", "LPV-200 availability", "rate",
+               _lpv200_availability, "the araim algorithm (its available column)"),
         Metric("hdop_max", "worst HDOP", "", _dop("hdop", "max"), "at least 4 satellites"),
         Metric("hdop_mean", "mean HDOP", "", _dop("hdop", "mean"), "at least 4 satellites"),
         Metric("pdop_max", "worst PDOP", "", _dop("pdop", "max"), "at least 4 satellites"),

@@ -140,3 +140,7 @@ from . import stanford as _stanford  # noqa: E402,I001
 # x axis is an error, not the time).
 register_panel(PanelSpec("stanford", _stanford.panel_figure,
                          needs=("hpl_m", "vpl_m", "hpe_before_m", "vpe_before_m"), order=50))
+
+# ARAIM's protection levels against the four LPV-200 criteria (ARAIM.md section 11).
+register_panel(PanelSpec("araim", figures.araim_figure, needs=("vpl_m", "emt_m"), order=15,
+                         claims=("hpl_m", "sigma_acc_m", "available")))

@@ -20,10 +20,84 @@ from raimcore.sky.constellations import SYSTEM_PREFIX
 from .figures import RunView
 from .mathrender import markdown_math
 
+#: Longer Learn-tab text for some algorithms (by registry name), shown after the key
+#: equations: what the algorithm's outputs mean and how to read its panel.
+ALGORITHM_NOTES: dict[str, str] = {
+    # ../shared/ARAIM.md sections 2-11 (the MAAST baseline, ARAIM ADD v4.2).
+    "araim": r"""
+**What MHSS computes.** Multiple hypothesis solution separation: one position from all
+satellites in view, $\hat x^{(0)} = S^{(0)} y$, and one per monitored *fault mode* $k$,
+$\hat x^{(k)} = S^{(k)} y$, computed without the satellites $R_k$ that the mode says may
+be faulty. If mode $k$ is the truth, $\hat x^{(k)}$ is fault-free; the separation
+$\hat x^{(k)} - \hat x^{(0)}$ is tested on each axis against $T_{k,q}$, and the protection
+levels cover the error of every mode that passes its test.
 
-def teaching_markdown(label: str, summary: str, equations: str, reference: str = "") -> str:
+**The integrity support message (ISM).** Per constellation: $\sigma_{URA}$, the clock and
+orbit error bound used for integrity ($C_{int}$, the protection levels); $\sigma_{URE}$,
+the one used for accuracy and continuity ($C_{acc}$, the thresholds and
+$\sigma_{acc}$); the nominal bias $b_{nom}$; the prior probability $P_{sat}$ that one
+satellite is faulty and $P_{const}$ that a whole constellation is. Scenario key `ism`
+(e.g. `--set 'ism={GAL={p_const=1e-8}}'`); the default is MAAST's example message, H-ARAIM
+grade (Galileo $\sigma_{URA} = 6$ m, $P_{const} = 2 \times 10^{-4}$).
+
+**Fault modes.** Each satellite and each constellation is an independent event $e$ with
+prior $p_e$; a set $E$ of events happens with probability
+$p(E) = P_0 \prod_{e \in E} \frac{p_e}{1 - p_e}$, $P_0 = \prod_e (1 - p_e)$. The
+modes are taken by size (single satellites, pairs, a constellation, ...) until the
+probability left unmonitored is small: $P_{nm} \le P_{THRES}$. A likely constellation
+fault ($P_{const}$ large) adds its mode, which removes all of that constellation's
+satellites: a large separation and a weak subset geometry, so a larger VPL.
+
+**Thresholds.** $T_{k,q} = K_{fa,q}\,\sigma_{ss,q}^{(k)} + b_{ss,q}^{(k)}$, the
+false-alarm budget split over the $N_{fm}$ modes:
+$K_{fa,3} = Q^{-1}\left(\frac{P_{FA,V}}{2 N_{fm}}\right)$.
+
+**Protection level** (ARAIM.md section 7). Per axis $q$, $L$ solves
+$2\,Q_m\left(\frac{L - b_q^{(0)}}{\sigma_q^{(0)}}\right) + \sum_{k \ge 1} p_k
+\min\left(Q_m\left(\frac{L - T_{k,q} - b_q^{(k)}}{\sigma_q^{(k)}}\right),
+a_k\right) = PHMI'$, with
+$PHMI_V' = \frac{PHMI_{VERT}}{N_{es,int}}\left(1 - \frac{P_{nm}}{PHMI_{VERT} +
+PHMI_{HOR}}\right)$ and $Q_m(x) = Q(x)$ for $x \ge 0$, $1$ below: the fault-free term
+plus every mode's chance of an error beyond $L$ while its test stays quiet, weighted by
+its prior, equals the integrity budget. $\mathrm{VPL} = L_3$,
+$\mathrm{HPL} = \sqrt{L_1^2 + L_2^2}$.
+
+**EMT and accuracy.** The effective monitor threshold is the largest vertical threshold
+of a mode likely enough to matter,
+$\mathrm{EMT} = \max \{ T_{k,3} : k \ge 1,\ p_k \ge P_{EMT} \}$ with
+$P_{EMT} = 10^{-5}$: the biggest vertical error the monitor lets pass without an alarm.
+$\sigma_{acc} = \sqrt{(S^{(0)} C_{acc} S^{(0)T})_{33}}$ is the all-in-view vertical
+accuracy.
+
+**LPV-200 availability.** An epoch is available when all four hold:
+$\mathrm{VPL} \le \mathrm{VAL} = 35$ m, $\mathrm{HPL} \le \mathrm{HAL} = 40$ m,
+$\mathrm{EMT} \le 15$ m and $\sigma_{acc} \le 1.87$ m (column `available`; the
+*ARAIM protection levels* panel shades the epochs that fail). With exclusion
+(`araim_fde`), the mode that explains an alarm is removed (a satellite or a whole
+constellation, column `excluded_mode`) and the protection levels are the worst over the
+exclusion candidates.
+""",
+}
+
+
+def algorithm_notes(name: str) -> str:
+    """The longer Learn-tab text of algorithm ``name`` (empty when it has none)."""
+    return ALGORITHM_NOTES.get(name, "")
+
+
+def _name_of(label: str) -> str:
+    """The registry name of the algorithm labelled ``label`` (empty when none is)."""
+    from raimcore import algorithms
+
+    return next((n for n in algorithms.names() if algorithms.get(n).label == label), "")
+
+
+def teaching_markdown(label: str, summary: str, equations: str, reference: str = "",
+                      name: str | None = None) -> str:
     """The teaching panel for one algorithm (from its ``AlgorithmSpec``): its summary and
-    key equations, every ``$...$`` typeset as MathML (:mod:`app.mathrender`).
+    key equations, then its longer notes (:data:`ALGORITHM_NOTES`, found by ``name``, or
+    by ``label`` when ``name`` is None), every ``$...$`` typeset as MathML
+    (:mod:`app.mathrender`).
 
     Raises
     ------
@@ -32,6 +106,9 @@ def teaching_markdown(label: str, summary: str, equations: str, reference: str =
     """
     parts = [f"### {label}", markdown_math(summary.strip()), "**Key equations**",
              markdown_math(equations.strip())]
+    notes = algorithm_notes(_name_of(label) if name is None else name)
+    if notes:
+        parts.append(markdown_math(notes.strip()))
     if reference:
         parts.append(f"*Reference:* {markdown_math(reference)}")
     return "\n\n".join(p for p in parts if p)

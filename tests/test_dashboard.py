@@ -480,8 +480,11 @@ def test_every_registered_algorithm_is_offered_with_its_options(session):
         assert set(session._option_handles) == set(spec.option_keys)
         assert spec.label in session.teach_md.content
         assert "detection" in session.figures and "errors" in session.figures
-        # every per-epoch output column of the algorithm is drawn in some panel
+        # every per-epoch output column of the algorithm is drawn in some panel (a trace
+        # named after it, or one whose meta names it: ARAIM's "EMT" draws emt_m)
         drawn = {tr.get("name") for f in session.figures.values() for tr in f.data}
+        drawn |= {(tr.get("meta") or {}).get("column") for f in session.figures.values()
+                  for tr in f.data if isinstance(tr.get("meta"), dict)}
         for col in session.result.output.columns:
             arr = np.asarray(session.result.output.columns[col])
             if arr.dtype.kind == "f" and np.isfinite(arr).any() and col != "dof":
@@ -714,3 +717,54 @@ def test_sky_plot_marks_each_system_with_its_own_symbol_and_the_mask_like_the_3d
     assert "◆ GAL" in json.dumps(fig.layout["title"], ensure_ascii=False)
     mask = next(tr for tr in fig.data if tr["name"] == "mask")
     assert mask["line"]["color"].startswith("rgba(140,80,230")  # scene.MASK_RGB
+
+
+@pytest.fixture(scope="module")
+def araim_view():
+    from app.session import run_view
+
+    # The built-in ARAIM scenario cut to 360 s: 60 epochs of its GAL fault (t0 300 s).
+    return run_view(run_scenario(load_scenario("araim", duration_s=359)))
+
+
+def test_araim_panel_shows_pls_emt_and_accuracy_against_lpv200(araim_view, default_view):
+    keys = [k for k, _ in panels.panels_for(araim_view)]
+    assert "araim" in keys
+    assert "araim" not in [k for k, _ in panels.panels_for(default_view)]  # parity
+    fig = dict(panels.panels_for(araim_view))["araim"](araim_view)
+    assert 200 <= fig.height_px <= 480
+    title = fig.layout["title"]
+    assert len(title["text"]) <= figures.TITLE_MAX_CHARS
+    assert len(title.get("subtitle", {}).get("text", "")) <= figures.DETAIL_MAX_CHARS
+    by_name = {tr["name"]: tr for tr in fig.data}
+    assert set(by_name) == {"VPL", "HPL", "EMT", "σ_acc"}
+    np.testing.assert_allclose(by_name["VPL"]["y"], araim_view.table["vpl_m"])
+    assert by_name["EMT"]["yaxis"] == by_name["σ_acc"]["yaxis"] == "y2"
+    # The limits: VAL/HAL on the PL axis, 15 m and 1.87 m on the EMT / sigma_acc axis.
+    lines = {(s["yref"], s["y0"]) for s in fig.layout["shapes"] if s["type"] == "line"}
+    assert {("y", 35.0), ("y", 40.0), ("y2", 15.0), ("y2", 1.87)} <= lines
+    # MAAST's example ISM is H-ARAIM grade: no epoch is LPV-200 available, so one grey
+    # band covers the run.
+    shaded = [s for s in fig.layout["shapes"] if s.get("name") == "unavailable"]
+    assert not araim_view.table["available"].any()
+    assert len(shaded) == 1
+    assert shaded[0]["x0"] == araim_view.t_s[0] and shaded[0]["x1"] == araim_view.t_s[-1]
+    # A time cursor across both rows, moved by the time slider like the other panels.
+    now = [s for s in fig.to_dict(10)["layout"]["shapes"] if s.get("name") == "now"]
+    assert len(now) == 1 and now[0]["x0"] == araim_view.t_s[10] and now[0]["yref"] == "paper"
+    fig.to_plotly(10)  # valid plotly
+
+
+def test_araim_panel_shades_only_the_unavailable_epochs(araim_view):
+    table = dict(araim_view.table)
+    avail = np.ones(len(araim_view.t_s), bool)
+    avail[5:9] = False
+    avail[-3:] = False
+    table["available"] = avail
+    import dataclasses
+
+    fig = figures.araim_figure(dataclasses.replace(araim_view, table=table))
+    shaded = [(s["x0"], s["x1"]) for s in fig.layout["shapes"]
+              if s.get("name") == "unavailable"]
+    t = araim_view.t_s
+    assert shaded == [(t[5], t[8]), (t[-3], t[-1])]

@@ -29,12 +29,13 @@ from raimcore.scenario import load_scenario
 from raimcore.scoring import Rate
 
 LESSONS = load_lessons()
-#: One lesson per topic of issue 14 (and issue 15's phone log), in this order.
+#: One lesson per topic of issue 14 (and issue 15's phone log, issue 16's two ARAIM
+#: lessons), in this order.
 TOPIC_IDS = [
     "01-what-is-raim", "02-parity-chi-square", "03-detection-isolation", "04-ramp-delay",
     "05-slope-protection-level", "06-geometry-dop", "07-baro-aiding",
     "08-solution-separation", "09-correlated-noise-pf-llr", "10-several-faults",
-    "11-real-recording", "12-phone-log",
+    "11-real-recording", "12-phone-log", "13-araim-fault-modes", "14-constellation-fault",
 ]
 #: "Short" lesson scenarios: tens to a few hundred epochs (600 where false alarms at
 #: P_fa = 0.05 are counted).

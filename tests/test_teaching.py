@@ -34,14 +34,19 @@ def _learn_markdown(name: str) -> str:
     return teaching.teaching_markdown(spec.label, spec.summary, spec.equations, spec.reference)
 
 
+def _learn_source(name: str) -> str:
+    """Every text the Learn tab shows for ``name``, before typesetting."""
+    spec = algorithms.get(name)
+    return spec.summary + spec.equations + teaching.algorithm_notes(name) + spec.reference
+
+
 # -- equations ---------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", algorithms.names())
 def test_every_algorithm_text_typesets_and_leaves_no_tex(name):
     """Each ``$...$`` of the summary and equations parses (MathError otherwise) and
     becomes one <math> element; the text a reader sees has no backslash and no dollar."""
-    spec = algorithms.get(name)
-    source = spec.summary + spec.equations + spec.reference
+    source = _learn_source(name)
     n_formulas = len(re.findall(r"\$[^$]+\$", source))
     md = _learn_markdown(name)
     assert md.count("<math ") == n_formulas >= 3
@@ -58,6 +63,30 @@ def test_the_formulas_read_as_written():
     parity = visible_text(_learn_markdown("parity"))
     assert "k=argmaxjDFI,j" in parity.replace(" ", "")
     assert "TD=F−1(1−Pfa)" in parity.replace(" ", "")
+
+
+def test_araim_learn_text_explains_modes_ism_pl_emt_and_lpv200():
+    """The ARAIM notes (ARAIM.md sections 2-11) typeset: the PL equation of section 7 as
+    one formula with its sum over the fault modes, EMT and the four LPV-200 limits."""
+    notes = teaching.algorithm_notes("araim")
+    assert notes and teaching.algorithm_notes("parity") == ""
+    md = _learn_markdown("araim")
+    # Found by the algorithm's label (the session passes no name) or by its name.
+    spec = algorithms.get("araim")
+    assert md == teaching.teaching_markdown(spec.label, spec.summary, spec.equations,
+                                            spec.reference, name="araim")
+    n_notes = len(re.findall(r"\$[^$]+\$", notes))
+    assert n_notes >= 20
+    assert markdown_math(notes.strip()).count("<math ") == n_notes
+    shown = visible_text(md)
+    assert "\\" not in shown and "$" not in shown
+    for words in ("What MHSS computes", "integrity support message", "Fault modes",
+                  "Protection level", "EMT and accuracy", "LPV-200 availability"):
+        assert words in shown, words
+    flat = re.sub(r"\s", "", shown)
+    assert "2Qm(" in flat and "∑k≥1pkmin(Qm(" in flat  # section 7's equation
+    assert "EMT=max{Tk,3:k≥1,pk≥PEMT}" in flat
+    assert "σacc≤1.87m" in flat and "EMT≤15m" in flat
 
 
 @pytest.mark.parametrize("tex", [
