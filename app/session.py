@@ -1041,7 +1041,7 @@ class Session:
                 painted = self.page.painted_count(timeout_s=1.0)
                 if painted is not None and painted0 is not None:
                     drawn = (painted - painted0) / (time.monotonic() - t_check)
-                    rate = min(PLAY_FPS, max(1.0, 1.2 * drawn))
+                    rate = min(PLAY_FPS, 1.2 * drawn + 1.0)  # probe one frame/s above
                     self.play_rate_md.content = (
                         f"Playing at {drawn:.1f} frames/s (at most {PLAY_FPS:g}: as fast "
                         "as this page paints)")

@@ -281,19 +281,40 @@ def _reveal(page, handle, folder: str) -> None:
 
 
 def _enter(page, handle, value, folder: str) -> None:
-    """Type or pick ``value`` in the control ``handle`` as a student would."""
-    _reveal(page, handle, folder)
-    row = _row(page, handle)
-    if isinstance(handle, _viser_handles().GuiDropdownHandle):
-        row.locator("input").first.click()
-        page.get_by_role("option", name=str(value), exact=True).click()
-        return
-    box = row.locator("input").last  # a slider's number box, a number or a text box
-    box.click()
-    box.press("Control+a")
-    box.press_sequentially(f"{value:g}" if isinstance(value, float) else str(value))
-    box.press("Enter")
-    box.blur()
+    """Type, pick or tick ``value`` in the control ``handle`` as a student would, and see
+    that the dashboard got it (an entry made while the page was busy is made again)."""
+    handles = _viser_handles()
+    for _attempt in range(3):
+        _reveal(page, handle, folder)
+        row = _row(page, handle)
+        if isinstance(handle, handles.GuiDropdownHandle):
+            row.locator("input").first.click()
+            page.get_by_role("option", name=str(value), exact=True).click()
+        elif isinstance(handle, handles.GuiCheckboxHandle):
+            row.locator("input").first.set_checked(bool(value))
+        else:
+            box = row.locator("input").last  # a slider's number box, a number or text
+            box.click()
+            box.press("Control+a")
+            box.press_sequentially(f"{value:g}" if isinstance(value, float) else str(value))
+            box.press("Enter")
+            box.blur()
+        t_end = time.monotonic() + 10
+        while time.monotonic() < t_end:
+            if _shows(handle.value, value):
+                return
+            time.sleep(0.05)
+    raise AssertionError(f"{handle.label}: entered {value!r}, the dashboard has "
+                         f"{handle.value!r}")
+
+
+def _shows(held, value) -> bool:
+    """Does a control holding ``held`` stand for the entered ``value``?"""
+    if isinstance(value, bool) or isinstance(held, bool):
+        return bool(held) == bool(value)
+    if isinstance(value, int | float) and isinstance(held, int | float):
+        return abs(float(held) - float(value)) <= 1e-9 * max(1.0, abs(float(value)))
+    return str(held).strip().lower() == str(value).strip().lower()
 
 
 def _viser_handles():
