@@ -302,24 +302,6 @@ class PageScript:
         self.client.gui._websock_interface.queue_message(
             _messages.RunJavascriptMessage(source=source))
 
-    def send_plotly_js(self) -> None:
-        """Send plotly.js to the page now, ahead of the first figure, as viser would with
-        it (``GuiApi.add_plotly``): the page then evaluates its 4.6 MB while the server
-        builds the controls and the first run, instead of after."""
-        gui = getattr(self.client, "gui", None)
-        if not self.live or gui is None or getattr(gui, "_setup_plotly_js", True):
-            return
-        try:
-            import plotly
-        except ImportError:  # pragma: no cover - the app extra has plotly
-            return
-        from pathlib import Path
-
-        path = Path(plotly.__file__).parent / "package_data" / "plotly.min.js"
-        if path.exists():
-            self.run(path.read_text(encoding="utf-8"))
-            gui._setup_plotly_js = True
-
     def install_helper(self, time_label: str) -> None:
         """Install :data:`HELPER_JS` once Plotly is in the page (after the first plot);
         ``time_label`` names the time slider the plots' cursor follows."""

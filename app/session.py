@@ -272,7 +272,6 @@ class Session:
         # draws the plots before the Earth's meshes (the first frame of a software-rendered
         # 3D view takes about a second).
         self.scene: SkyScene | None = None
-        self.page.send_plotly_js()  # first: the page evaluates it while the GUI is built
         self._build_gui()
         self.request_recompute()
         self._probe_window()
