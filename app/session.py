@@ -868,6 +868,8 @@ class Session:
         verdict = teaching.verdict(view, result.summary, scenario.p_fa,
                                    faults=result.scenario.faults)
         t2 = time.perf_counter()
+        if self._closed:  # the tab closed while the figures were built: nothing to send
+            return
         self.result, self.view, self.figures = result, view, figs
         self.i_epoch = self._time_index(float(self.time.value))
         # Plots first, in batches of GUI messages of their own: the page draws those at
