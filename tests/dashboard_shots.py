@@ -30,9 +30,9 @@ def make_shots(out_dir, lesson_id: str = "03-detection-isolation", *, dash=None,
     Chromium) are started here and stopped after, unless given."""
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "tests"))
+    import test_dashboard_browser as tb
     from playwright.sync_api import sync_playwright
 
-    import test_dashboard_browser as tb
     from app.lessons import load_lessons
     from app.server import Dashboard
 

@@ -404,9 +404,8 @@ def test_every_lesson_walks_to_its_check_in_the_browser(dash, browser):
 def test_the_screenshot_script_makes_the_readme_pictures(dash, browser, tmp_path):
     """``tests/dashboard_shots.py`` (the README's pictures) runs and writes two pictures
     of the window's size."""
-    import imageio.v3 as iio
-
     import dashboard_shots
+    import imageio.v3 as iio
 
     paths = dashboard_shots.make_shots(tmp_path, dash=dash, browser=browser)
     assert [p.name for p in paths] == ["dashboard.png", "lesson.png"]

@@ -20,6 +20,8 @@ from raimcore.sky.rinex import RinexError, gps_minus_utc_s, gps_seconds, read_na
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 ESBC_NAV = DATA / "ESBC00DNK_R_20201770000_01D_MN.rnx"
 ESBC_OBS = DATA / "ESBC00DNK_R_20201770000_02H_30S_MO.rnx"
+#: How the reader's notes name the systems it reads (the default, "GCER").
+READ = "systems read: GPS, BeiDou, Galileo, GLONASS"
 
 
 def _nan(values) -> np.ndarray:
@@ -136,7 +138,7 @@ def test_rinex4_eph_records_equal_the_rinex3_records(tmp_path):
                           "J": 1}
     assert set(v4.notes) == {"1 record of GPS CNAV skipped (message type not read)",
                              "1 record of BeiDou CNV1 skipped (message type not read)",
-                             "1 record of QZSS skipped (systems read: GPS, BeiDou, Galileo, GLONASS)"}
+                             f"1 record of QZSS skipped ({READ})"}
     # Klobuchar from the ION records (the RINEX 3 header's values, more digits).
     for key in ("GPSA", "GPSB", "BDSA", "BDSB"):
         np.testing.assert_allclose(v4.iono[key], v3.iono[key], rtol=1e-3)
@@ -252,8 +254,8 @@ def test_esbc_every_record_of_the_four_systems_is_read(esbc):
     count = _first_letters(ESBC_NAV)
     for s in "GREC":
         assert len(esbc.records[s][0]) == count[s], s
-    assert esbc.notes == (f"{count['J']} records of QZSS skipped (systems read: GPS, BeiDou, Galileo, GLONASS)",
-                          f"{count['S']} records of SBAS skipped (systems read: GPS, BeiDou, Galileo, GLONASS)")
+    assert esbc.notes == (f"{count['J']} records of QZSS skipped ({READ})",
+                          f"{count['S']} records of SBAS skipped ({READ})")
     assert esbc.leap_s == 18.0
 
 
@@ -292,8 +294,8 @@ def test_esbc_merged_with_itself_is_unchanged(esbc):
     twice = read_nav([ESBC_NAV, ESBC_NAV])
     assert_same_records(twice, esbc)  # every record of the copy dropped, silently:
     assert twice.skipped == {k: 2 * v for k, v in esbc.skipped.items()}
-    assert twice.notes == tuple(f"{2 * esbc.skipped[s]} records of {name} skipped (systems "
-                                "read: GPS, BeiDou, Galileo, GLONASS)" for s, name in (("J", "QZSS"), ("S", "SBAS")))
+    assert twice.notes == tuple(f"{2 * esbc.skipped[s]} records of {name} skipped ({READ})"
+                                for s, name in (("J", "QZSS"), ("S", "SBAS")))
 
 
 # -- compressed files --------------------------------------------------------------------------
