@@ -13,18 +13,21 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["sigma_tropo_m", "sigma_user_add_m", "sigma_user_ed259a_m", "MAAST_EXAMPLE_ISM"]
+from ..constants import F_L1_HZ, F_L5_HZ
 
-F_L1_HZ = 1575.42e6  # IS-GPS-200 / Galileo OS SIS ICD, L1 = E1
-F_L5_HZ = 1176.45e6  # IS-GPS-705 / Galileo OS SIS ICD, L5 = E5a
-# Iono-free (L1-L5) noise amplification, sqrt((f1^4 + f5^4) / (f1^2 - f5^2)^2) = 2.5883
-IF_FACTOR = np.sqrt((F_L1_HZ**4 + F_L5_HZ**4) / (F_L1_HZ**2 - F_L5_HZ**2) ** 2)
+__all__ = ["sigma_tropo_m", "sigma_mp_noise_m", "sigma_user_add_m", "sigma_user_ed259a_m",
+           "MAAST_EXAMPLE_ISM", "IF_FACTOR", "GAL_USER_SIGMA_M", "TROPO_ZENITH_SIGMA_M"]
 
-# Galileo airborne sigma (m) at 5, 10, ..., 90 deg (B2012 / ADD; ARAIM.md section 2).
+TROPO_ZENITH_SIGMA_M = 0.12  # troposphere residual at the zenith (m), RTCA DO-229 A.4.2.4
+#: Iono-free (L1-L5) noise amplification, sqrt((f1^4 + f5^4) / (f1^2 - f5^2)^2) = 2.5883
+#: (ARAIM.md section 2: variance factor 6.6994).
+IF_FACTOR = float(np.sqrt((F_L1_HZ**4 + F_L5_HZ**4) / (F_L1_HZ**2 - F_L5_HZ**2) ** 2))
+
+#: Galileo E1/E5a airborne sigma (m) at 5, 10, ..., 90 deg (B2012 / ADD; ARAIM.md
+#: section 2), linearly interpolated in the elevation in degrees (held at its ends).
+GAL_USER_SIGMA_M = (0.4529, 0.3553, 0.3063, 0.2638, 0.2593, 0.2555, 0.2504, 0.2438, 0.2396,
+                    0.2359, 0.2339, 0.2302, 0.2295, 0.2278, 0.2297, 0.2310, 0.2274, 0.2277)
 _GAL_EL_DEG = np.arange(5.0, 91.0, 5.0)
-_GAL_SIGMA_M = np.array([0.4529, 0.3553, 0.3063, 0.2638, 0.2593, 0.2555, 0.2504, 0.2438,
-                         0.2396, 0.2359, 0.2339, 0.2302, 0.2295, 0.2278, 0.2297, 0.2310,
-                         0.2274, 0.2277])
 
 
 def sigma_tropo_m(el_rad):
@@ -33,7 +36,15 @@ def sigma_tropo_m(el_rad):
     References: RTCA DO-229 A.4.2.4 (``af_trpmops.m``); ARAIM.md section 2.
     """
     s = np.sin(np.asarray(el_rad, dtype=float))
-    return 0.12 * 1.001 / np.sqrt(0.002001 + s * s)
+    return TROPO_ZENITH_SIGMA_M * 1.001 / np.sqrt(0.002001 + s * s)
+
+
+def sigma_mp_noise_m(el_rad):
+    """Single-frequency airborne multipath + noise sigma (m) of B2012 / the ADD (GPS
+    curve): ``sqrt(sigma_MP^2 + sigma_N^2)``, ``sigma_MP = 0.13 + 0.53 exp(-theta/10)``,
+    ``sigma_N = 0.15 + 0.43 exp(-theta/6.9)`` (theta in deg)."""
+    theta = np.degrees(np.asarray(el_rad, dtype=float))
+    return np.hypot(0.13 + 0.53 * np.exp(-theta / 10.0), 0.15 + 0.43 * np.exp(-theta / 6.9))
 
 
 def sigma_user_add_m(el_rad, system):
@@ -56,10 +67,8 @@ def sigma_user_add_m(el_rad, system):
     bad = ~np.isin(sysv, ("GPS", "GAL"))
     if np.any(bad):
         raise ValueError(f"system must be GPS or GAL, got {np.unique(sysv[bad])!r}")
-    mp = 0.13 + 0.53 * np.exp(-theta / 10.0)
-    noise = 0.15 + 0.43 * np.exp(-theta / 6.9)
-    gps = IF_FACTOR * np.sqrt(mp**2 + noise**2)
-    gal = np.interp(theta, _GAL_EL_DEG, _GAL_SIGMA_M)
+    gps = IF_FACTOR * sigma_mp_noise_m(el_rad)
+    gal = np.interp(theta, _GAL_EL_DEG, GAL_USER_SIGMA_M)
     return np.where(sysv == "GPS", gps, gal)
 
 

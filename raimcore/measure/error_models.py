@@ -49,7 +49,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import nnls
 
-from ..constants import F_L1_HZ, F_L5_HZ
+from ..araim.error_model import (
+    GAL_USER_SIGMA_M,
+    sigma_mp_noise_m,
+    sigma_tropo_m,
+    sigma_user_add_m,
+    sigma_user_ed259a_m,
+)
+from ..araim.error_model import IF_FACTOR as IONO_FREE_FACTOR
 from ..sky.spp import elevation_sigma
 from .errors import clock_free_errors
 
@@ -76,11 +83,9 @@ RTKLIB_ERR_B_M = 0.003  # src/rtkcmn.c prcopt_default: err[2], phase error facto
 #: EFACT_CMP 1.0 (src/rtkpos.c varerr applies EFACT_GLO, EFACT_SBS, else EFACT_GPS).
 RTKLIB_EFACT = {"GPS": 1.0, "GLO": 1.5, "GAL": 1.0, "BDS": 1.0}
 
-# ../shared/ARAIM.md section 2 (MAAST af_trpmops.m; RTCA DO-229 A.4.2.4).
-TROPO_ZENITH_SIGMA_M = 0.12  # troposphere residual at the zenith (m)
-#: Noise factor of the L1/L5 iono-free combination, sqrt((f1^4 + f5^4) / (f1^2 - f5^2)^2)
-#: = 2.5883 (ARAIM.md section 2: variance factor 6.6994).
-IONO_FREE_FACTOR = math.sqrt((F_L1_HZ**4 + F_L5_HZ**4) / (F_L1_HZ**2 - F_L5_HZ**2) ** 2)
+# The ARAIM.md section 2 formulas (troposphere, multipath + noise, the iono-free factor,
+# the Galileo table) have one home, raimcore.araim.error_model; the models here floor the
+# elevation at EL_FLOOR_RAD before calling them.
 #: Broadcast URA (m) assumed where the navigation record gives none (a simulated sky;
 #: GLONASS records of RINEX 3, which carry no F_T): GPS 2.4 m and Galileo 6 m are the
 #: MAAST example ISD values of ARAIM.md section 10 (sigma_URA); BeiDou takes the GPS
@@ -115,6 +120,11 @@ def resolve_model(name: str, recorded: bool, algorithm: str | None = None) -> st
 
 def _sin_el(el_rad) -> np.ndarray:
     return np.maximum(np.sin(np.asarray(el_rad, dtype=float)), math.sin(EL_FLOOR_RAD))
+
+
+def _floored(el_rad) -> np.ndarray:
+    """The elevation, at least :data:`EL_FLOOR_RAD` (rad)."""
+    return np.arcsin(_sin_el(el_rad))
 
 
 def uniform_sigma(el_rad, sigma_m: float) -> np.ndarray:
@@ -152,8 +162,7 @@ def rtklib_sigma(el_rad, efact=1.0, *, eratio: float = RTKLIB_ERATIO,
 def tropo_sigma(el_rad) -> np.ndarray:
     """Troposphere residual 1-sigma (m): ``0.12 * 1.001 / sqrt(0.002001 + sin^2 el)``
     (ARAIM.md section 2, MAAST ``af_trpmops.m``; RTCA DO-229 A.4.2.4 mapping)."""
-    s = _sin_el(el_rad)
-    return TROPO_ZENITH_SIGMA_M * 1.001 / np.sqrt(0.002001 + s * s)
+    return sigma_tropo_m(_floored(el_rad))
 
 
 def user_sigma(el_rad, *, iono_free: bool = False) -> np.ndarray:
@@ -166,10 +175,7 @@ def user_sigma(el_rad, *, iono_free: bool = False) -> np.ndarray:
     single-frequency (L1 C/A, B1I, E1, GLONASS L1), so the ``broadcast`` model leaves it
     out.
     """
-    theta = np.degrees(np.arcsin(_sin_el(el_rad)))
-    mp = 0.13 + 0.53 * np.exp(-theta / 10.0)
-    n = 0.15 + 0.43 * np.exp(-theta / 6.9)
-    out = np.hypot(mp, n)
+    out = sigma_mp_noise_m(_floored(el_rad))
     return out * IONO_FREE_FACTOR if iono_free else out
 
 
@@ -184,11 +190,6 @@ def broadcast_sigma(el_rad, ura_m) -> np.ndarray:
 
 # -- ARAIM: the integrity support message and the nominal user model (ARAIM.md sections 1, 2)
 
-#: Airborne multipath + noise of the Galileo E1/E5a iono-free user (m) at the elevations
-#: 5, 10, ..., 90 deg, linearly interpolated (ARAIM.md section 2; B2012 / the ADD).
-GAL_USER_SIGMA_M = (0.4529, 0.3553, 0.3063, 0.2638, 0.2593, 0.2555, 0.2504, 0.2438, 0.2396,
-                    0.2359, 0.2339, 0.2302, 0.2295, 0.2278, 0.2297, 0.2310, 0.2274, 0.2277)
-_GAL_USER_EL_DEG = tuple(float(x) for x in range(5, 95, 5))
 
 #: The per-system fields of the ISM: (name, unit, lo, hi, help), the one declaration that
 #: the parser, the messages and the docs read.
@@ -371,18 +372,13 @@ def araim_user_sigma(el_rad, system, user_model: str = "add") -> np.ndarray:
     >>> print(f"{float(araim_user_sigma(math.radians(90.0), 'GAL')):.4f}")
     0.2277
     """
-    s = _sin_el(el_rad)
-    theta = np.degrees(np.arcsin(s))
+    el = _floored(el_rad)
     if user_model == "ed259a":
-        cnmp = 0.34 + 0.40 * np.exp(-theta / 14.0)
-        iono = 40.0 / (261.0 + theta * theta) + 0.018
-        return np.sqrt(0.4**2 + cnmp * cnmp + iono * iono)
+        return sigma_user_ed259a_m(el)
     if user_model != "add":
         raise ValueError(f"user_model must be one of {', '.join(USER_MODELS)}, got "
                          f"{user_model!r}")
-    if system == "GAL":
-        return np.interp(theta, _GAL_USER_EL_DEG, GAL_USER_SIGMA_M)
-    return user_sigma(el_rad, iono_free=True)
+    return sigma_user_add_m(el, "GAL" if system == "GAL" else "GPS")
 
 
 def araim_sigmas(el_rad, systems, sys_idx, ism: Ism = MAAST_ISM,
