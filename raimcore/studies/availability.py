@@ -47,7 +47,6 @@ import json
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -57,6 +56,7 @@ from .._validate import check_choice, check_int, check_positive, check_range
 from ..geometry import enu_rotation, geodetic_to_ecef
 from ..measure.error_models import USER_MODELS, Ism, araim_sigmas, parse_ism
 from ..sky.constellations import SYSTEM_PREFIX, Constellation, builtin, combine
+from .montecarlo import run_on_dask, run_on_pool
 
 __all__ = ["availability", "AvailabilityResult", "ISM_PRESETS", "DEFAULT_ISM", "ALGORITHMS",
            "user_grid", "in_polygon", "coverage_pct", "WORLD", "CHUNK_USERS",
@@ -581,54 +581,20 @@ def availability(systems=("GPS", "GAL"), *, lat_step_deg: float = 10.0,
         wall_s=time.perf_counter() - t0, status="ok" if idx.size else "empty")
 
 
-def _ignore_sigint() -> None:
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def _run_pool(tasks, chunks, finish, tick, workers: int) -> None:
-    """Chunks on a process pool; on Ctrl-C or an error the workers are stopped at once."""
-    pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_sigint)
-    try:
-        futs = {pool.submit(run_chunk, t): (c, t) for c, t in zip(chunks, tasks, strict=True)}
-        for f in as_completed(futs):
-            c, t = futs[f]
-            finish(c, f.result())
-            tick(c.size * t.t_s.size)
-    except BaseException:
-        procs = list((getattr(pool, "_processes", None) or {}).values())
-        pool.shutdown(wait=False, cancel_futures=True)
-        for p in procs:
-            p.terminate()
-        for p in procs:
-            p.join(timeout=5)
-        raise
-    pool.shutdown()
+    """Chunks on a process pool (:func:`raimcore.studies.montecarlo.run_on_pool`)."""
+    run_on_pool(run_chunk, [((c, t), (t,)) for c, t in zip(chunks, tasks, strict=True)],
+                lambda ct, res: _done(ct, res, finish, tick), workers)
 
 
 def _run_dask(tasks, chunks, finish, tick, address: str, workers: int) -> None:
-    try:
-        from dask.distributed import Client, LocalCluster
-        from dask.distributed import as_completed as d_as_completed
-    except ImportError as exc:
-        raise ValueError("dask needs the optional dependency: pip install "
-                         f"'raim-studio[dask]' ({exc})") from None
-    cluster = None
-    if address == "local":
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
-        client = Client(cluster)
-    else:
-        client = Client(address)
-    try:
-        futs = [client.submit(run_chunk, t, pure=False) for t in tasks]
-        where = {f.key: (c, t) for f, c, t in zip(futs, chunks, tasks, strict=True)}
-        for f in d_as_completed(futs):
-            c, t = where[f.key]
-            finish(c, f.result())
-            tick(c.size * t.t_s.size)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+    """Chunks on Dask (:func:`raimcore.studies.montecarlo.run_on_dask`)."""
+    run_on_dask(run_chunk, [((c, t), (t,)) for c, t in zip(chunks, tasks, strict=True)],
+                lambda ct, res: _done(ct, res, finish, tick), address, workers,
+                option="dask")
+
+
+def _done(chunk_task, result, finish, tick) -> None:
+    c, t = chunk_task
+    finish(c, result)
+    tick(c.size * t.t_s.size)

@@ -592,14 +592,15 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _run_pool(study, todo, finish, workers: int) -> None:
-    """Run the chunks on a process pool; on Ctrl-C (or any error) stop the workers at
-    once instead of waiting for the queued chunks."""
+def run_on_pool(fn, calls, on_result, workers: int) -> None:
+    """Run ``fn(*args)`` for each ``(tag, args)`` of ``calls`` on a process pool and hand
+    each result to ``on_result(tag, result)`` as it comes; on Ctrl-C (or any error) stop
+    the workers at once instead of waiting for the queued calls."""
     pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_sigint)
     try:
-        futs = {pool.submit(run_chunk, study, s, c): s for s, c in todo}
+        futs = {pool.submit(fn, *args): tag for tag, args in calls}
         for f in as_completed(futs):
-            finish(futs[f], f.result())
+            on_result(futs[f], f.result())
     except BaseException:
         # The executor has no public way to stop running work: terminate its processes.
         procs = list((getattr(pool, "_processes", None) or {}).values())
@@ -612,12 +613,17 @@ def _run_pool(study, todo, finish, workers: int) -> None:
     pool.shutdown()
 
 
-def _run_dask(study, todo, finish, address: str, workers: int):
+def run_on_dask(fn, calls, on_result, address: str, workers: int, *, option: str,
+                keys=None) -> None:
+    """:func:`run_on_pool` on Dask: ``address`` ``"local"`` (a LocalCluster of
+    ``workers`` processes, closed after) or a scheduler's address; ``keys`` names the
+    tasks (one per call); ``option`` names the setting in the message when dask is not
+    installed."""
     try:
         from dask.distributed import Client, LocalCluster
         from dask.distributed import as_completed as d_as_completed
     except ImportError as exc:
-        raise ValueError("--dask needs the optional dependency: pip install "
+        raise ValueError(f"{option} needs the optional dependency: pip install "
                          f"'raim-studio[dask]' ({exc})") from None
     cluster = None
     if address == "local":
@@ -627,18 +633,27 @@ def _run_dask(study, todo, finish, address: str, workers: int):
     else:
         client = Client(address)
     try:
-        futs = [client.submit(run_chunk, study, s, c, key=f"raim-{study.name}-{s}-{c}-"
-                              f"{study.seed}-{study.runs}-{study.bias_scale}-{study.bias_unit}"
-                              f"-{'+'.join(study.systems)}",
-                              pure=False)
-                for s, c in todo]
-        settings = {f.key: s for f, (s, _) in zip(futs, todo, strict=True)}
+        futs = [client.submit(fn, *args, pure=False,
+                              **({} if keys is None else {"key": keys[k]}))
+                for k, (_tag, args) in enumerate(calls)]
+        tags = {f.key: tag for f, (tag, _) in zip(futs, calls, strict=True)}
         for f in d_as_completed(futs):
-            finish(settings[f.key], f.result())
+            on_result(tags[f.key], f.result())
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _run_pool(study, todo, finish, workers: int) -> None:
+    run_on_pool(run_chunk, [(s, (study, s, c)) for s, c in todo], finish, workers)
+
+
+def _run_dask(study, todo, finish, address: str, workers: int):
+    keys = [f"raim-{study.name}-{s}-{c}-{study.seed}-{study.runs}-{study.bias_scale}-"
+            f"{study.bias_unit}-{'+'.join(study.systems)}" for s, c in todo]
+    run_on_dask(run_chunk, [(s, (study, s, c)) for s, c in todo], finish, address,
+                workers, option="--dask", keys=keys)
 
 
 def write_csv(res: StudyResult, path) -> None:
