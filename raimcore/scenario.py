@@ -45,6 +45,7 @@ from .schema import (
     key,
     keys_of,
 )
+from .sky.constellations import SYSTEM_PREFIX
 from .sky.trajectories import TRAJECTORY_KINDS
 
 __all__ = ["Scenario", "Restrict", "load_scenario", "list_scenarios", "from_dict",
@@ -53,7 +54,7 @@ __all__ = ["Scenario", "Restrict", "load_scenario", "list_scenarios", "from_dict
 
 #: Satellite systems and the first letter of their satellites' names (RINEX 3): GPS,
 #: BeiDou, Galileo, GLONASS. Each system has its own receiver clock.
-SYSTEMS = {"GPS": "G", "BDS": "C", "GAL": "E", "GLO": "R"}
+SYSTEMS = SYSTEM_PREFIX
 #: Where the pseudoranges come from: simulated, a RINEX recording or an Android GnssLogger
 #: log (both raimcore.sky.recording: one chain, two readers of ``obs``).
 SOURCES = ("sim", "rinex", "android")

@@ -234,14 +234,12 @@ def recording_keys(obs, source: str | None = None) -> dict:
     a default signal (:data:`~raimcore.sky.spp.DEFAULT_SIGNALS`) among GPS, BDS, GAL and
     GLO, the whole recording at its nominal interval, and the real-data defaults
     (:data:`REAL_DATA_DEFAULTS`; a phone: :data:`PHONE_DEFAULTS`)."""
-    from ..scenario import SYSTEMS  # the systems a scenario takes
-
     stamp = _stamp(obs, "obs")
     if source is None:
         source = "android" if observation_source(stamp[0]) == "android" else "rinex"
     o = _read_obs(stamp, _check_source(source))
-    systems = [s for s, letter in SYSTEM_LETTER.items() if s in SYSTEMS
-               and any(n[0] == letter for n in o.sat_names)
+    systems = [s for s, letter in SYSTEM_LETTER.items()
+               if any(n[0] == letter for n in o.sat_names)
                and any(c in o.obs_types.get(letter, ()) and c in o.codes
                        for c in DEFAULT_SIGNALS[s])] or ["GPS"]
     t = o.t_gps_s - o.t_gps_s[0] if len(o.t_gps_s) else np.zeros(1)

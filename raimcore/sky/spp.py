@@ -47,6 +47,7 @@ from ..constants import (
 )
 from ..geometry import az_el, ecef_to_geodetic
 from ..lsq import LsqResult, wls
+from .constellations import SYSTEM_PREFIX
 from .ephemeris import ephemeris_notes, from_nav, sat_pos_clock
 from .rinex import _GPS_EPOCH, NavFile, ObsFile
 
@@ -54,11 +55,9 @@ __all__ = ["Corrected", "correct", "solve", "spp", "klobuchar", "troposphere",
            "elevation_sigma", "carrier_hz", "ALL_SYSTEM_LETTER", "SYSTEM_LETTER",
            "DEFAULT_SIGNALS"]
 
-#: Every system :func:`correct` positions with, and the first letter of its satellites.
-ALL_SYSTEM_LETTER = {"GPS": "G", "BDS": "C", "GAL": "E", "GLO": "R"}
-#: The systems a recording scenario offers (``recording.recording_keys``): all of them, as
-#: the scenario schema takes all four (``scenario.SYSTEMS``).
-SYSTEM_LETTER = ALL_SYSTEM_LETTER
+#: Every system :func:`correct` positions with, and the first letter of its satellites:
+#: the one table of the project (``constellations.SYSTEM_PREFIX``, ``scenario.SYSTEMS``).
+ALL_SYSTEM_LETTER = SYSTEM_LETTER = SYSTEM_PREFIX
 #: Preferred code signals per system, first found wins (RINEX 3 and RINEX 2 names): GPS
 #: L1 C/A, BeiDou B1I (``C1I`` is its RINEX 3.02 name), Galileo E1 (pilot C or B+C; the
 #: clock and BGD of the I/NAV record), GLONASS L1 C/A.
