@@ -38,10 +38,12 @@ draws a few times a second. The helper itself reaches the page once, through vis
 
 from __future__ import annotations
 
+import functools
 import html
 import json
 import logging
 import threading
+from pathlib import Path
 
 log = logging.getLogger(__name__)
 
@@ -116,154 +118,200 @@ HELPER_JS = r"""
 ((timeLabel, attr, drawnKey) => {
   const R = window.__raimStudio = window.__raimStudio || {state: null};
   R.timeLabel = timeLabel;
-  if (R.installed || !window.Plotly) return;
-  R.installed = true;
-  const P = window.Plotly;
-  R.react = P.react.bind(P);
-  R.relayout = P.relayout.bind(P);
-  R.applied = new WeakMap();  // dynamic trace object -> the update it shows
-  const meta = (gd) => gd && gd.layout && gd.layout.meta && gd.layout.meta.raim !== undefined
-    ? gd.layout.meta : null;
-  // Move shape k (a vertical line) to x = t. Plotly.relayout would recalculate and
-  // redraw the whole figure (a shape may set the axis range): 15-60 ms a plot. Instead
-  // the line's SVG path is moved and the layout objects are updated in place, so that
-  // plotly's next full redraw draws it there too.
-  R.moveLine = (gd, k, t) => {
-    const shape = gd.layout.shapes[k];
-    shape.x0 = t; shape.x1 = t;
-    const fl = gd._fullLayout, xa = fl && fl.xaxis;
-    const full = fl && fl.shapes && fl.shapes[k];
-    if (full) { full.x0 = t; full.x1 = t; }
-    const path = gd.querySelector(`.shapelayer path[data-index="${k}"]`);
-    const d = path && path.getAttribute('d');
-    const m = d && /^M([^,]+),([^L]+)L([^,]+),(.+)$/.exec(d);
-    if (!xa || !xa.c2p || !m) return false;
-    const x = xa._offset + xa.c2p(t);
-    if (!isFinite(x)) return false;
-    path.setAttribute('d', `M${x},${m[2]}L${x},${m[4]}`);
-    return true;
-  };
-  R.cursor = (gd, t) => {
-    const shapes = (gd.layout && gd.layout.shapes) || [];
-    const k = shapes.findIndex(sh => sh && sh.name === 'now');
-    if (k >= 0 && t !== null && shapes[k].x0 !== t && !R.moveLine(gd, k, t)) {
-      R.relayout(gd, {[`shapes[${k}].x0`]: t, [`shapes[${k}].x1`]: t});
-    }
-  };
-  R.apply = (gd) => {
-    const s = R.state, m = meta(gd);
-    if (!s || !m || !gd.data) return;
-    const d = s.dyn[m.raim];
-    if (d && d.rev === m.rev) {
-      const first = gd.data[m.n];
-      const seen = (first && R.applied.get(first)) ?? m.seq ?? -1;
-      if (seen < s.seq) {
-        const data = gd.data.slice(0, m.n).concat(d.traces.map(t => ({...t})));
-        if (data.length > m.n) R.applied.set(data[m.n], s.seq);
-        R.react(gd, data, {...gd.layout, ...d.layout});
+  if (R.installed || R.hooked) return;
+  // Sent before the first figure: installed the moment plotly.js defines window.Plotly,
+  // before any figure is drawn.
+  if (!window.Plotly) {
+    R.hooked = true;
+    Object.defineProperty(window, 'Plotly', {configurable: true, enumerable: true,
+      get() { return undefined; },
+      set(v) {
+        Object.defineProperty(window, 'Plotly', {value: v, writable: true,
+                                                 configurable: true, enumerable: true});
+        install(v);
+      }});
+    return;
+  }
+  install(window.Plotly);
+  function install(P) {
+    if (R.installed) return;
+    R.installed = true;
+    R.react = P.react.bind(P);
+    R.relayout = P.relayout.bind(P);
+    R.applied = new WeakMap();  // dynamic trace object -> the update it shows
+    const meta = (gd) => gd && gd.layout && gd.layout.meta && gd.layout.meta.raim !== undefined
+      ? gd.layout.meta : null;
+    // Move shape k (a vertical line) to x = t. Plotly.relayout would recalculate and
+    // redraw the whole figure (a shape may set the axis range): 15-60 ms a plot. Instead
+    // the line's SVG path is moved and the layout objects are updated in place, so that
+    // plotly's next full redraw draws it there too.
+    R.moveLine = (gd, k, t) => {
+      const shape = gd.layout.shapes[k];
+      shape.x0 = t; shape.x1 = t;
+      const fl = gd._fullLayout, xa = fl && fl.xaxis;
+      const full = fl && fl.shapes && fl.shapes[k];
+      if (full) { full.x0 = t; full.x1 = t; }
+      const path = gd.querySelector(`.shapelayer path[data-index="${k}"]`);
+      const d = path && path.getAttribute('d');
+      const m = d && /^M([^,]+),([^L]+)L([^,]+),(.+)$/.exec(d);
+      if (!xa || !xa.c2p || !m) return false;
+      const x = xa._offset + xa.c2p(t);
+      if (!isFinite(x)) return false;
+      path.setAttribute('d', `M${x},${m[2]}L${x},${m[4]}`);
+      return true;
+    };
+    R.cursor = (gd, t) => {
+      const shapes = (gd.layout && gd.layout.shapes) || [];
+      const k = shapes.findIndex(sh => sh && sh.name === 'now');
+      if (k >= 0 && t !== null && shapes[k].x0 !== t && !R.moveLine(gd, k, t)) {
+        R.relayout(gd, {[`shapes[${k}].x0`]: t, [`shapes[${k}].x1`]: t});
       }
-    }
-    R.cursor(gd, s.t);
-  };
-  R.each = (f) => document.querySelectorAll('.js-plotly-plot').forEach(gd => {
-    try { f(gd); } catch (e) { console.warn('raim time update', e); }
-  });
-  // Several updates before the page could draw (Play while the page is busy): only the
-  // last one is drawn.
-  R.set = (state) => {
-    if (R.state && state.seq < R.state.seq) return;
-    R.state = state;
-    if (R.pending) return;
-    R.pending = true;
-    queueMicrotask(() => {
-      R.pending = false;
-      R.each(R.apply);
-      // Count the updates painted (Play reads the count to match the page's pace).
-      requestAnimationFrame(() => setTimeout(() => {
-        R.painted = (R.painted || 0) + 1;
-        try { localStorage.setItem(drawnKey, String(R.painted)); } catch (e) {}
-      }, 0));
+    };
+    R.apply = (gd) => {
+      const s = R.state, m = meta(gd);
+      if (!s || !m || !gd.data) return;
+      const d = s.dyn[m.raim];
+      if (d && d.rev === m.rev) {
+        const first = gd.data[m.n];
+        const seen = (first && R.applied.get(first)) ?? m.seq ?? -1;
+        if (seen < s.seq) {
+          const data = gd.data.slice(0, m.n).concat(d.traces.map(t => ({...t})));
+          if (data.length > m.n) R.applied.set(data[m.n], s.seq);
+          R.react(gd, data, {...gd.layout, ...d.layout});
+        }
+      }
+      R.cursor(gd, s.t);
+    };
+    R.each = (f) => document.querySelectorAll('.js-plotly-plot').forEach(gd => {
+      try { f(gd); } catch (e) { console.warn('raim time update', e); }
     });
-  };
-  // The cursor follows the time slider in the page, before the server answers: t
-  // snapped to the run's epochs as the server does (the first epoch at or after t).
-  R.snap = (t) => {
-    const g = R.state && R.state.grid;
-    if (!g) return t;
-    const i = Math.min(Math.max(Math.ceil((t - 1e-9 - g.t0) / g.dt), 0), g.n - 1);
-    return g.t0 + i * g.dt;
-  };
-  R.follow = (value) => {
-    const t = R.snap(parseFloat(value));
-    if (!R.state || !isFinite(t) || t === R.state.t) return;
-    R.state = {...R.state, t: t};
-    R.each(gd => R.cursor(gd, t));
-  };
-  R.isTimeThumb = (el) => {
-    for (let e = el, k = 0; e && k < 10; e = e.parentElement, k++) {
-      const text = (e.textContent || '').trim();
-      if (text.startsWith(R.timeLabel)) return true;
-      if (text.length > 200) return false;
-    }
-    return false;
-  };
-  R.read = (el) => {
-    const raw = el.getAttribute(attr);
-    if (raw) R.set(JSON.parse(raw));
-  };
-  new MutationObserver(records => {
-    for (const r of records) {
-      const el = r.target;
-      if (r.type === 'attributes') {
-        if (el.getAttribute('role') === 'slider' && R.timeLabel &&
-            (el === R.timeThumb || (R.isTimeThumb(el) && (R.timeThumb = el)))) {
-          R.follow(el.getAttribute('aria-valuenow'));
-        }
-      } else {
-        for (const n of r.addedNodes) {
-          if (n.nodeType !== 1) continue;
-          // The carrier itself (a new update), or a GUI element holding it (mounted).
-          const c = n.hasAttribute(attr) ? n
-            : (n.firstElementChild && !n.closest('.js-plotly-plot')
-               ? n.querySelector(`[${attr}]`) : null);
-          if (c) R.read(c);
+    // Several updates before the page could draw (Play while the page is busy): only the
+    // last one is drawn.
+    R.set = (state) => {
+      if (R.state && state.seq < R.state.seq) return;
+      R.state = state;
+      if (R.pending) return;
+      R.pending = true;
+      queueMicrotask(() => {
+        R.pending = false;
+        R.each(R.apply);
+        // Count the updates painted (Play reads the count to match the page's pace).
+        requestAnimationFrame(() => setTimeout(() => {
+          R.painted = (R.painted || 0) + 1;
+          try { localStorage.setItem(drawnKey, String(R.painted)); } catch (e) {}
+        }, 0));
+      });
+    };
+    // The cursor follows the time slider in the page, before the server answers: t
+    // snapped to the run's epochs as the server does (the first epoch at or after t).
+    R.snap = (t) => {
+      const g = R.state && R.state.grid;
+      if (!g) return t;
+      const i = Math.min(Math.max(Math.ceil((t - 1e-9 - g.t0) / g.dt), 0), g.n - 1);
+      return g.t0 + i * g.dt;
+    };
+    R.follow = (value) => {
+      const t = R.snap(parseFloat(value));
+      if (!R.state || !isFinite(t) || t === R.state.t) return;
+      R.state = {...R.state, t: t};
+      R.each(gd => R.cursor(gd, t));
+    };
+    R.isTimeThumb = (el) => {
+      for (let e = el, k = 0; e && k < 10; e = e.parentElement, k++) {
+        const text = (e.textContent || '').trim();
+        if (text.startsWith(R.timeLabel)) return true;
+        if (text.length > 200) return false;
+      }
+      return false;
+    };
+    R.read = (el) => {
+      const raw = el.getAttribute(attr);
+      if (raw) R.set(JSON.parse(raw));
+    };
+    new MutationObserver(records => {
+      for (const r of records) {
+        const el = r.target;
+        if (r.type === 'attributes') {
+          if (el.getAttribute('role') === 'slider' && R.timeLabel &&
+              (el === R.timeThumb || (R.isTimeThumb(el) && (R.timeThumb = el)))) {
+            R.follow(el.getAttribute('aria-valuenow'));
+          }
+        } else {
+          for (const n of r.addedNodes) {
+            if (n.nodeType !== 1) continue;
+            // The carrier itself (a new update), or a GUI element holding it (mounted).
+            const c = n.hasAttribute(attr) ? n
+              : (n.firstElementChild && !n.closest('.js-plotly-plot')
+                 ? n.querySelector(`[${attr}]`) : null);
+            if (c) R.read(c);
+          }
         }
       }
-    }
-  }).observe(document.body, {subtree: true, childList: true, attributes: true,
-                             attributeFilter: ['aria-valuenow']});
-  const carrier = document.querySelector(`[${attr}]`);
-  if (carrier) R.read(carrier);
-  // A plot scrolled out of view is redrawn when it comes back into view, not while the
-  // visible ones are being drawn (a recompute re-sends every figure at once).
-  R.visible = new WeakMap();
-  R.deferred = new WeakMap();
-  R.redraw = (gd, args) => {
-    const out = R.react(gd, ...args);
-    const after = () => { try { R.apply(gd); } catch (e) { console.warn(e); } return gd; };
-    return out && out.then ? out.then(after) : after();
-  };
-  R.seen = new IntersectionObserver(entries => {
-    for (const e of entries) {
-      R.visible.set(e.target, e.isIntersecting);
-      const args = e.isIntersecting && R.deferred.get(e.target);
-      if (args) { R.deferred.delete(e.target); R.redraw(e.target, args); }
-    }
-  });
-  // viser redraws a plot from its JSON (a new figure, a resize): then the latest time.
-  P.react = function (gd, ...rest) {
-    const fl = gd && gd._fullLayout, lay = rest[1] || {};
-    if (fl && R.visible.get(gd) === false && lay.width === fl.width &&
-        lay.height === fl.height) {
-      // Drawn before, out of view now, same size (the page keeps its layout): drawn
-      // when it is seen again.
-      R.deferred.set(gd, rest);
-      return Promise.resolve(gd);
-    }
-    if (gd) R.deferred.delete(gd);
-    if (gd && !R.visible.has(gd)) { R.visible.set(gd, true); R.seen.observe(gd); }
-    return R.redraw(gd, rest);
-  };
+    }).observe(document.body, {subtree: true, childList: true, attributes: true,
+                               attributeFilter: ['aria-valuenow']});
+    const carrier = document.querySelector(`[${attr}]`);
+    if (carrier) R.read(carrier);
+    // A plot scrolled out of view is redrawn when it comes back into view, not while the
+    // visible ones are being drawn (a recompute re-sends every figure at once).
+    R.visible = new WeakMap();
+    R.deferred = new WeakMap();
+    R.redraw = (gd, args) => {
+      const out = R.react(gd, ...args);
+      const after = () => { try { R.apply(gd); } catch (e) { console.warn(e); } return gd; };
+      return out && out.then ? out.then(after) : after();
+    };
+    R.seen = new IntersectionObserver(entries => {
+      for (const e of entries) {
+        R.visible.set(e.target, e.isIntersecting);
+        const args = e.isIntersecting && R.deferred.get(e.target);
+        if (args) { R.deferred.delete(e.target); R.redraw(e.target, args); }
+      }
+    });
+    R.draw = (gd, rest) => {
+      if (gd) R.deferred.delete(gd);
+      if (gd && !R.visible.has(gd)) { R.visible.set(gd, true); R.seen.observe(gd); }
+      return R.redraw(gd, rest);
+    };
+    // A plot's first drawing: one per task, the first at once, so that the page paints
+    // the top plot before it draws the others (a page's first figures arrive together).
+    R.firstJobs = new Map();  // plot -> [arguments, resolvers]
+    R.first = (gd, rest) => new Promise(resolve => {
+      const job = R.firstJobs.get(gd);
+      if (job) { job[0] = rest; job[1].push(resolve); return; }  // only its latest size
+      R.firstJobs.set(gd, [rest, [resolve]]);
+      if (!R.firstBusy) R.pump();
+    });
+    R.pump = () => {
+      const next = R.firstJobs.entries().next();
+      if (next.done) { R.firstBusy = false; return; }
+      R.firstBusy = true;
+      const [gd, [rest, resolvers]] = next.value;
+      R.firstJobs.delete(gd);
+      let out = gd;
+      if (gd.isConnected) {
+        try { out = R.draw(gd, rest); } catch (e) { console.warn('raim first draw', e); }
+      }
+      Promise.resolve(out).then(v => resolvers.forEach(r => r(v)),
+                                () => resolvers.forEach(r => r(gd)));
+      requestAnimationFrame(() => setTimeout(R.pump, 0));
+    };
+    // viser redraws a plot from its JSON (a new figure, a resize): then the latest time.
+    P.react = function (gd, ...rest) {
+      const fl = gd && gd._fullLayout, lay = rest[1] || {};
+      // viser's first call comes before the plot's box is measured (width 0): the call
+      // with the measured width follows at once, and only that one is drawn.
+      if (gd && !lay.width && !fl) return Promise.resolve(gd);
+      if (fl && R.visible.get(gd) === false && lay.width === fl.width &&
+          lay.height === fl.height) {
+        // Drawn before, out of view now, same size (the page keeps its layout): drawn
+        // when it is seen again.
+        R.deferred.set(gd, rest);
+        return Promise.resolve(gd);
+      }
+      if (gd && !fl) return R.first(gd, rest);
+      return R.draw(gd, rest);
+    };
+  }
 })(%s, %s, %s);
 """
 
@@ -271,6 +319,24 @@ VIEWPORT_JS = (
     "try { localStorage.setItem(%s, JSON.stringify([window.innerWidth, "
     "window.innerHeight])); } catch (e) {}"
 )
+
+
+#: The dashboard's plotly.js: plotly.js with only the trace types of the panels
+#: (app/assets/plotly/README.md). The page evaluates it in ~0.1 s, the full bundle viser
+#: sends in ~0.8 s, before it can draw the first plot.
+PLOTLY_JS_PATH = Path(__file__).parent / "assets" / "plotly-raim.min.js"
+#: The trace types in that bundle (app/assets/plotly/entry.js).
+PLOTLY_TRACE_TYPES = frozenset({"scatter", "bar", "heatmap", "contour", "scatterpolar"})
+
+
+@functools.cache
+def plotly_js() -> str | None:
+    """The text of :data:`PLOTLY_JS_PATH` (None if the file is missing)."""
+    try:
+        return PLOTLY_JS_PATH.read_text(encoding="utf-8")
+    except OSError as exc:
+        log.warning("dashboard plotly.js not read (%s): viser sends its full bundle", exc)
+        return None
 
 
 class PageScript:
@@ -290,10 +356,30 @@ class PageScript:
         self.carrier = None
         self.last_state: dict | None = None
 
-    def attach(self, gui) -> None:
+    def attach(self, gui, time_label: str | None = None) -> None:
         """Create the hidden element that carries the time updates, in ``gui``'s
-        current container."""
+        current container; with ``time_label``, also send :data:`HELPER_JS` now, ahead of
+        plotly.js (it installs itself when plotly.js has run, before the first figure)."""
         self.carrier = gui.add_html(carrier_html(None))
+        if time_label is not None:
+            self.install_helper(time_label)
+        self.send_plotly(gui)
+
+    def send_plotly(self, gui) -> bool:
+        """Send the dashboard's plotly.js (:data:`PLOTLY_JS_PATH`) now, ahead of the first
+        figure, in place of the full bundle viser sends with the first ``add_plotly``.
+
+        Returns False, and viser sends its own bundle as usual, when ``gui`` does not
+        keep viser 1.x's "sent" flag (``_setup_plotly_js``), it is already set, or the
+        file is missing."""
+        if getattr(gui, "_setup_plotly_js", None) is not False:
+            return False
+        source = plotly_js()
+        if source is None:
+            return False
+        self.run(source)
+        gui._setup_plotly_js = True
+        return True
 
     def run(self, source: str) -> None:
         """Run ``source`` in the page (in order with the other messages)."""
@@ -303,8 +389,8 @@ class PageScript:
             _messages.RunJavascriptMessage(source=source))
 
     def install_helper(self, time_label: str) -> None:
-        """Install :data:`HELPER_JS` once Plotly is in the page (after the first plot);
-        ``time_label`` names the time slider the plots' cursor follows."""
+        """Send :data:`HELPER_JS` to the page once (it installs itself when Plotly is
+        there); ``time_label`` names the time slider the plots' cursor follows."""
         with self._lock:
             if not self._installed:
                 self.run(HELPER_JS % (json.dumps(time_label), json.dumps(CARRIER_ATTR),
