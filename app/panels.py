@@ -144,3 +144,9 @@ register_panel(PanelSpec("stanford", _stanford.panel_figure,
 # ARAIM's protection levels against the four LPV-200 criteria (ARAIM.md section 11).
 register_panel(PanelSpec("araim", figures.araim_figure, needs=("vpl_m", "emt_m"), order=15,
                          claims=("hpl_m", "sigma_acc_m", "available")))
+
+from . import araim_modes as _araim_modes  # noqa: E402
+
+# ARAIM's monitored fault modes at the time slider's epoch (follows the time updates).
+register_panel(PanelSpec("araim_modes", _araim_modes.fault_modes_figure,
+                         needs=tuple(f"extras:{k}" for k in _araim_modes.NEEDS), order=16))

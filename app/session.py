@@ -53,8 +53,10 @@ from raimcore.scenario import Scenario, list_scenarios, load_scenario, scenario_
 from raimcore.schema import is_input_error as input_error
 
 from . import page, panels, teaching
+from .availability_view import AvailabilityView
 from .controls import FAULT_KEYS, KeyControl
 from .figures import PanelFigure, RunView
+from .ism_controls import IsmControls
 from .lessons import add_lessons_tab
 from .scene import SceneRun, SkyScene
 
@@ -312,6 +314,7 @@ class Session:
                                                   c["p_fa"].handle)
         self.mask, self.seed = c["mask_deg"].handle, c["seed"].handle
         self.options_folder = gui.add_folder("Algorithm options", expand_by_default=False)
+        self.ism_controls = IsmControls(self, gui)  # hidden where ARAIM is not used
         t_end = float(s.duration_s)
         self.fault_controls: dict[str, KeyControl] = {}
         with gui.add_folder("Faults"):
@@ -374,13 +377,15 @@ class Session:
         with self.plot_panel.add_tab("Plots"):
             self.per_sat_pick = gui.add_dropdown("Per-satellite panel", [NO_OUTPUT])
             self.plots_folder = gui.add_folder("Panels")
-            self.page.attach(gui)  # hidden: carries the time updates to the plots
+            self.page.attach(gui, self.time.label)  # hidden: time updates to the plots
         with self.plot_panel.add_tab("Learn"):
             self.teach_md = gui.add_markdown("")
             with gui.add_folder("Report on this scenario", expand_by_default=False):
                 self.report_md = gui.add_markdown(scenario_report_markdown(self.scenario))
         with self.plot_panel.add_tab("Lessons"):
             self.lessons_tab = add_lessons_tab(self, gui, self.lesson_dirs)
+        with self.plot_panel.add_tab("Availability"):  # a world map in the background
+            self.availability_view = AvailabilityView(self, gui)
         self.plot_panel.dock_right()
         self.gui.main_panel.dock_left()
 
@@ -481,8 +486,10 @@ class Session:
                 ctl.handle.on_update(lambda _e, c=ctl, n=k.name: self._on_key(
                     c, lambda v: self.scenario.replace(**{n: v})))
                 self.option_controls[k.name] = ctl
-        self.teach_md.content = teaching.teaching_markdown(spec.label, spec.summary,
-                                                           spec.equations, spec.reference)
+        self._teach_text = teaching.teaching_markdown(spec.label, spec.summary,
+                                                      spec.equations, spec.reference)
+        if self.plot_handles:  # else after the first plots (_recompute): typeset math is
+            self.teach_md.content = self._teach_text  # slow for the page to lay out
 
     @property
     def _option_handles(self) -> dict[str, object]:
@@ -530,6 +537,7 @@ class Session:
     def _set_scenario(self, new: Scenario) -> bool:
         """Make ``new`` the session's scenario; True when it differs from the old one."""
         old, self.scenario = self.scenario, new
+        self.ism_controls.show(new)  # the ISM folder follows (systems, visibility)
         return new != old or new.to_dict() != old.to_dict()
 
     def _attempt(self, make: Callable[[], Scenario], revert: Callable[[], None]
@@ -603,6 +611,7 @@ class Session:
                 self.time.value = 0.0
                 self._fault_index = 0 if s.faults else -1
                 self._build_option_controls()
+                self.ism_controls.show(s)
                 self.report_md.content = scenario_report_markdown(s)
             finally:
                 self._syncing = False
@@ -882,6 +891,8 @@ class Session:
                 self.scene = self._make_scene()
             self.scene.i_epoch = self.i_epoch
             self.scene.set_run(scene_run(result, view))
+        if self.teach_md.content != self._teach_text:
+            self.teach_md.content = self._teach_text
         t3 = time.perf_counter()
         tm = self.timing
         tm.run_s, tm.figures_s, tm.push_s, tm.total_s = t1 - t0, t2 - t1, t3 - t2, t3 - t0
@@ -1103,6 +1114,7 @@ class Session:
         a running job), drop figures, runs and handles, remove uploads."""
         self._closed = True
         self._play_stop.set()
+        self.availability_view.close(wait_s)  # cancels a running map, joins its thread
         self.scheduler.close()
         self.scheduler.wait_idle(wait_s)
         play = self._play_thread

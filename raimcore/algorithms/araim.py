@@ -258,6 +258,9 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
         "alarm_mode": alarm_mode,
         "excluded_mode": exc_name,
     }
+    if fde:
+        cols["pl_set_by"] = _set_by(res, avail, data)
+    cols["pl_note"] = _pl_note(res, avail, cols.get("pl_set_by"), data)
     statistic = np.where(avail, res.test_ratio, np.nan)
     return AlgorithmOutput(
         status=status,
@@ -271,7 +274,84 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
         per_sat={"sigma_int_m": np.where(used, sig_int, np.nan),
                  "sigma_acc_m": np.where(used, sig_acc, np.nan)},
         columns=cols,
+        extras=_mode_extras(res.modes, avail, data),
     )
+
+
+def _set_by(res, avail, data: Measurements) -> np.ndarray:
+    """Per epoch, the exclusion candidate whose evaluation gave the VPL (where the VPL is
+    the all-in-view's: the HPL), by name (a satellite, or a system key for a whole
+    constellation); ``""`` where both are the all-in-view's (kernel ``vpl_set_by``,
+    ``hpl_set_by``)."""
+    by = np.where(res.vpl_set_by >= 0, res.vpl_set_by, res.hpl_set_by)
+    labels = np.array(tuple(data.sat_names) + tuple(data.systems) + ("",), dtype=object)
+    return np.where(avail & (by >= 0), labels[np.where(by >= 0, by, -1)], "").astype(object)
+
+
+def _pl_note(res, avail, set_by, data: Measurements) -> np.ndarray:
+    """Per epoch, why a protection level is infinite where the geometry is available
+    (``""`` where both are finite): never a silent infinity (ARAIM.md sections 7, 9).
+
+    An infinite PL means the budget left for it is used up: by ``P_not_monitored``
+    (``PHMI' <= 0``), by an exclusion candidate that leaves 3 satellites or fewer (MAAST's
+    rule), or, in a candidate's evaluation, by the priors of the fault modes it leaves
+    unmonitorable (each spends ``p_inst``, more than ``rho PHMI'``). No commas: the
+    note is a column of the result CSV."""
+    n_ep = len(avail)
+    note = np.full(n_ep, "", dtype=object)
+    inf = avail & ~(np.isfinite(res.vpl_m) & np.isfinite(res.hpl_m))
+    if not inf.any():
+        return note
+    used = data.used & np.isfinite(data.pr_m)
+    n_used = used.sum(axis=1)
+    systems = tuple(data.systems)
+    for i in np.flatnonzero(inf):
+        which = ("VPL and HPL" if not (np.isfinite(res.vpl_m[i]) or np.isfinite(res.hpl_m[i]))
+                 else "VPL" if not np.isfinite(res.vpl_m[i]) else "HPL")
+        budget = f"PHMI_V' = {res.phmi_vert_alloc[i]:.2g}"
+        cand = "" if set_by is None else set_by[i]
+        if not cand:
+            note[i] = (f"{which} infinite: P_not_monitored = {res.p_not_monitored[i]:.2g} "
+                       f"uses up the integrity budget ({budget})")
+            continue
+        gone = (int(np.sum(used[i] & (data.sys_idx == systems.index(cand))))
+                if cand in systems else 1)
+        if n_used[i] - gone <= 3:
+            why = f"excluding {cand} leaves {n_used[i] - gone} satellites (3 or fewer)"
+        else:
+            why = (f"after excluding {cand} the fault modes left unmonitorable (too few "
+                   f"satellites to separate them) have priors above its budget ({budget})")
+        note[i] = (f"{which} infinite (set by the exclusion candidate {cand}): {why}; "
+                   "araim_fde = false gives the detection-only PLs")
+    return note
+
+
+#: Extras of the fault-mode panel: per epoch and monitored mode (padded to K).
+MODE_EXTRAS = ("mode_label", "mode_p_inst", "mode_threshold_m", "mode_separation_m",
+               "mode_monitored")
+
+
+def _mode_extras(modes, avail, data: Measurements) -> dict[str, np.ndarray]:
+    """The fault modes of every epoch for displays (:data:`MODE_EXTRAS`), all ``(E, K)``
+    or ``(E, K, 3)`` (E, N, U), the fault-free mode left out: ``mode_label`` names what the
+    mode removes (:func:`_mode_names`), ``mode_p_inst`` its prior, ``mode_threshold_m``
+    ``T_k,q``, ``mode_separation_m`` ``((S^(k) - S^(0)) y)_q``, ``mode_monitored`` a real,
+    monitorable mode at an available epoch. Empty without the kernel's mode table."""
+    if modes is None or modes.sats.shape[1] <= 1:
+        return {}
+    n_ep, k_all = modes.p_inst.shape
+    labels = np.stack([_mode_names(modes, np.full(n_ep, k), data)
+                       for k in range(1, k_all)], axis=1)
+    mon = modes.monitored[:, 1:] & avail[:, None]
+    sep = modes.separation_m[:, 1:] if modes.separation_m is not None else None
+    return {
+        "mode_label": np.where(mon, labels, "").astype(object),
+        "mode_p_inst": np.where(mon, modes.p_inst[:, 1:], 0.0),
+        "mode_threshold_m": np.where(mon[..., None], modes.threshold_m[:, 1:], np.nan),
+        "mode_separation_m": (np.where(mon[..., None], sep, np.nan) if sep is not None
+                              else np.full(mon.shape + (3,), np.nan)),
+        "mode_monitored": mon,
+    }
 
 
 def _mode_names(modes, index, data: Measurements) -> np.ndarray:

@@ -87,6 +87,11 @@ With ``y`` and ``fde`` (else None): ``excluded_sat`` / ``excluded_const`` ``B`` 
     its satellites) passes every separation test, only where ``alarm``; if several pass,
     the smallest largest normalised separation wins. ``dx_excluded_enu_m`` ``B + (3,)``
     its position correction (NaN if none).
+With ``fde`` (else None): ``vpl_set_by``, ``hpl_set_by`` ``B`` int -- the evaluation that
+    gave the VPL / HPL: -1 the all-in-view, else the exclusion candidate as an event index
+    (satellite ``i``, or ``n_sat + j`` for constellation ``j``). An infinite PL whose
+    candidate is not -1 comes from that candidate (e.g. after excluding a constellation a
+    mode left unmonitorable spends more than the candidate's budget ``rho PHMI'``).
 rules, params : the rule set and the effective constants (a read-only mapping).
 
 Exclusion (``fde=True``, section 9, as MAAST's ``usr_vhpl_araim.m`` evaluates it): the

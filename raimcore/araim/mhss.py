@@ -72,7 +72,10 @@ class MhssResult:
     ``phmi_vert_alloc``, ``phmi_hor_alloc``, ``rho``, ``sigma_m``, ``bias_m``; ``modes``
     (:class:`FaultModes` or None); with ``y``: ``dx_enu_m``, ``alarm``, ``alarm_mode``,
     ``test_ratio``; with ``y`` and ``fde``: ``excluded_sat``, ``excluded_const``,
-    ``dx_excluded_enu_m``; ``rules`` and ``params``.
+    ``dx_excluded_enu_m``; ``rules`` and ``params``; with ``fde``: ``vpl_set_by``,
+    ``hpl_set_by`` (B int: the exclusion candidate whose evaluation gave the VPL / HPL,
+    as an event index, satellite ``i`` or ``n_sat + j`` for constellation ``j``; -1 the
+    all-in-view), which say why a PL is infinite when the all-in-view one is not.
     """
 
     hpl_m: np.ndarray
@@ -104,6 +107,8 @@ class MhssResult:
     dx_excluded_enu_m: np.ndarray | None
     rules: str
     params: MappingProxyType
+    vpl_set_by: np.ndarray | None = None
+    hpl_set_by: np.ndarray | None = None
 
     @property
     def available(self) -> np.ndarray:
@@ -423,6 +428,7 @@ def _run_chunk(inp, eps, pat, modes, cands, rho, prm, rules, out, want_modes):
     vpl, emt, sacc = ev.vpl.copy(), ev.emt.copy(), ev.sigma_acc_v.copy()
     best_sat = best_const = None
     dx_exc = None
+    vpl_by = hpl_by = np.full(len(eps), -1)
     if cands:
         e_s = len(eps)
         best_ratio = np.full(e_s, np.inf)
@@ -430,7 +436,11 @@ def _run_chunk(inp, eps, pat, modes, cands, rho, prm, rules, out, want_modes):
         best_const = np.full(e_s, -1)
         dx_exc = np.full((e_s, 3), np.nan)
         for kind, j, keep in cands:
+            event = idx[:, j] if kind == "sat" else np.full(len(eps), inp.visible.shape[1]
+                                                              + pat.pc[j])
             if keep.sum() <= 3:  # MAAST: such a candidate leaves the PLs infinite
+                vpl_by = np.where(np.isfinite(vpl), event, vpl_by)
+                hpl_by = np.where(np.isfinite(hpl), event, hpl_by)
                 for a in (hpl, hpl1, hpl2, vpl, emt, sacc):
                     a[:] = np.inf
                 continue
@@ -444,6 +454,8 @@ def _run_chunk(inp, eps, pat, modes, cands, rho, prm, rules, out, want_modes):
                            rules=rules, rho=rho, drop=False, p_nm=ev.p_nm,
                            y=None if y is None else y[:, keep])
             bigger = evc.hpl > hpl
+            hpl_by = np.where(bigger, event, hpl_by)
+            vpl_by = np.where(evc.vpl > vpl, event, vpl_by)
             hpl1 = np.where(bigger, evc.hpl1, hpl1)
             hpl2 = np.where(bigger, evc.hpl2, hpl2)
             hpl = np.maximum(hpl, evc.hpl)
@@ -463,6 +475,8 @@ def _run_chunk(inp, eps, pat, modes, cands, rho, prm, rules, out, want_modes):
                     best_sat = np.where(passes, -1, best_sat)
                 dx_exc = np.where(passes[:, None], evc.dx, dx_exc)
     out.store(eps, ev, hpl, hpl1, hpl2, vpl, emt, sacc, rho, best_sat, best_const, dx_exc)
+    if out.fde:
+        out.vpl_by[eps], out.hpl_by[eps] = vpl_by, hpl_by
     if want_modes:
         out.store_modes(eps, idx, pat, modes, ev)
 
@@ -485,6 +499,8 @@ class _Outputs:
         self.rho = np.ones(e)
         self.sigma, self.bias = nan(3), nan(3)
         self.with_y, self.fde = with_y, fde
+        self.vpl_by = np.full(e, -1)
+        self.hpl_by = np.full(e, -1)
         if with_y:
             self.dx = nan(3)
             self.alarm = np.zeros(e, dtype=bool)
@@ -576,4 +592,5 @@ class _Outputs:
             b(prm["k_acc"] * self.sacc), b(prm["k_ff"] * self.sacc), b(status),
             b(_REASONS[self.reason]), b(self.n_sats), b(self.n_modes), b(self.p_nm),
             b(self.k_fa), b(self.phmi_v), b(self.phmi_h), b(self.rho), b(self.sigma),
-            b(self.bias), modes, *y_fields, *fde_fields, rules, _params.frozen(prm))
+            b(self.bias), modes, *y_fields, *fde_fields, rules, _params.frozen(prm),
+            b(self.vpl_by) if self.fde else None, b(self.hpl_by) if self.fde else None)
