@@ -1038,11 +1038,13 @@ class Session:
         """Play: simulated time advances by Speed x the real time elapsed, in frames sent
         at a rate that follows what the page paints (a page that draws slower than
         PLAY_FPS gets fewer frames, not a backlog it would drop). Once a second the page
-        says how many updates it painted; that rate is shown under the Play controls."""
+        says how many updates it painted; the frames are sent at 1.2 x the last second's
+        rate + 1, and the rate painted since Play started is shown under the controls."""
         rate = PLAY_FPS
         t_play = float(self.time.value)
         last = t_check = time.monotonic()
         painted0 = self.page.painted_count(timeout_s=1.0)
+        first = (painted0, t_check)  # the rate shown: painted since Play started
         while not self._play_stop.is_set():
             now = time.monotonic()
             t_play += float(self.speed.value.rstrip("x")) * (now - last)
@@ -1055,8 +1057,11 @@ class Session:
                 if painted is not None and painted0 is not None:
                     drawn = (painted - painted0) / (time.monotonic() - t_check)
                     rate = min(PLAY_FPS, 1.2 * drawn + 1.0)  # probe one frame/s above
+                    if first[0] is None:
+                        first = (painted0, t_check)
+                    shown = (painted - first[0]) / (time.monotonic() - first[1])
                     self.play_rate_md.content = (
-                        f"Playing at {drawn:.1f} frames/s (at most {PLAY_FPS:g}: as fast "
+                        f"Playing at {shown:.1f} frames/s (at most {PLAY_FPS:g}: as fast "
                         "as this page paints)")
                 painted0, t_check = painted, time.monotonic()
             self._play_stop.wait(max(now + 1.0 / rate - time.monotonic(), 0.0))
