@@ -21,8 +21,8 @@ AUTO_PORT_TRIES = 20
 
 
 def add(sub) -> None:
-    """Add the ``dashboard`` and ``stanford`` subcommands to the ``raim`` subparsers
-    ``sub``."""
+    """Add the ``dashboard``, ``stanford`` and ``availability`` subcommands to the ``raim``
+    subparsers ``sub``."""
     from raimcore.cli import _add_recording_args
 
     p = sub.add_parser("dashboard", help="start the web dashboard",
@@ -33,6 +33,8 @@ def add(sub) -> None:
     _add_recording_args(p)
     p.set_defaults(func=run)
     add_stanford(sub)
+    from .availability import add_subcommand as add_availability
+
     add_availability(sub)
 
 
@@ -309,186 +311,4 @@ def run_stanford(args) -> int:
     if args.png is not None:
         stanford.write_png(fig, args.png)
         print(f"picture written to {args.png}")
-    return 0
-
-
-# --------------------------------------------------------------------------------------
-# raim availability
-
-AVAILABILITY_EPILOG = """\
-examples:
-  raim availability                                  # MAAST's world: 10 deg, 24 h, 300 s
-  raim availability --systems GPS,GAL --ism maast --png world.png
-  raim availability --step 5 --region "30,-20;72,-20;72,45;30,45" --csv europe.csv
-  raim availability --almanac GPS=almmops.txt GAL=gal_week703.alm --workers 2
-
-Users on MAAST's grid (init_usrdata.m) of the region polygon (default: the world), height
-0; epochs 0, T, ... < duration of the nominal constellations or the almanacs (YUMA or SEM;
-FILE alone is GPS, SYS=FILE another system). At each user-epoch the ARAIM MHSS protection
-levels (ADD v4.2, LPV-200 constants); an epoch is available when VPL <= 35 m, HPL <= 40 m,
-EMT <= 15 m and sigma_acc <= 1.87 m. Coverage = cos(latitude)-weighted share of users
-available at least 99.5 % of the time (evaluate_coverage.m).
-
-ISM: b2012 (default; sigma_URA 0.75 m, sigma_URE 0.5 m, b_nom 0.5 m, MAAST's priors) or
-maast (MAAST's example ISD, sigma_URA GPS 2.4 / GAL 6 m: H-ARAIM grade, its vertical
-accuracy sigma is about 3.3 m > 1.87 m, so LPV-200 coverage is 0 %).
-The HTML is one self-contained file (plotly.js inline, no CDN); --png needs a headless
-Chromium or Chrome on PATH.
-"""
-
-
-def add_availability(sub) -> None:
-    """Add the ``availability`` subcommand to the ``raim`` subparsers ``sub``."""
-    p = sub.add_parser("availability", help="ARAIM LPV-200 availability map of a user grid",
-                       description="ARAIM LPV-200 availability over a latitude/longitude "
-                       "grid of users during a day (MAAST's study): coverage, a world map "
-                       "(HTML, PNG) and the grid as CSV.",
-                       epilog=AVAILABILITY_EPILOG,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--systems", default="GPS,GAL", metavar="SYS,SYS",
-                   help="constellations, of GPS, GAL, BDS, GLO (default %(default)s)")
-    p.add_argument("--step", type=float, default=10.0, metavar="DEG",
-                   help="grid step in latitude and longitude (default %(default)g deg)")
-    p.add_argument("--t-step", type=float, default=300.0, metavar="S",
-                   help="time step (default %(default)g s)")
-    p.add_argument("--duration", type=float, default=86400.0, metavar="S",
-                   help="time span from t = 0 (default %(default)g s)")
-    p.add_argument("--height", type=float, default=0.0, metavar="M",
-                   help="user height (default %(default)g m)")
-    p.add_argument("--mask", type=float, default=5.0, metavar="DEG",
-                   help="elevation mask (default %(default)g deg)")
-    p.add_argument("--region", metavar="LAT,LON;LAT,LON;...",
-                   help="polygon of at least 3 vertices in degrees (default: the world); "
-                        "write --region=-30,... when it starts with a minus sign")
-    p.add_argument("--almanac", nargs="+", metavar="[SYS=]FILE",
-                   help="YUMA or SEM almanacs instead of the nominal constellations")
-    p.add_argument("--ism", default="b2012", choices=("b2012", "maast"),
-                   help="integrity support message (default %(default)s; see below)")
-    p.add_argument("--user-model", default="ed259a", choices=("ed259a", "add"),
-                   help="airborne multipath + noise model (default %(default)s, MAAST v5)")
-    p.add_argument("--target", type=float, default=99.5, metavar="PCT",
-                   help="availability a user needs to be covered (default %(default)g %%)")
-    p.add_argument("--workers", type=int, default=1, metavar="N",
-                   help="processes (default 1: this process)")
-    p.add_argument("--dask", metavar="ADDRESS",
-                   help="run on Dask: 'local' (a LocalCluster of --workers processes) or "
-                        "a scheduler address")
-    p.add_argument("--out", type=Path, metavar="FILE.html",
-                   help="write the map as HTML (default availability.html when neither "
-                        "--png nor --csv is given)")
-    p.add_argument("--png", type=Path, metavar="FILE.png",
-                   help="also write a PNG (needs a Chromium or Chrome browser on PATH)")
-    p.add_argument("--csv", type=Path, metavar="FILE.csv", help="write the grid as CSV")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=run_availability)
-
-
-def parse_region(text: str | None):
-    """``"lat,lon;lat,lon;..."`` -> a list of (lat, lon) vertices, or a ValueError."""
-    if text is None:
-        return None
-    pts = []
-    for item in filter(None, (x.strip() for x in text.split(";"))):
-        parts = item.split(",")
-        try:
-            if len(parts) != 2:
-                raise ValueError
-            pts.append((float(parts[0]), float(parts[1])))
-        except ValueError:
-            raise ValueError(f"--region must be LAT,LON;LAT,LON;... in degrees, got "
-                             f"{item!r} in {text!r}") from None
-    if len(pts) < 3:
-        raise ValueError(f"--region needs at least 3 vertices LAT,LON;LAT,LON;LAT,LON, got "
-                         f"{text!r}")
-    return pts
-
-
-class _Bar:
-    """A one-line text progress bar on stderr."""
-
-    def __init__(self, enabled: bool):
-        import time
-
-        self.enabled, self.t0, self.last = enabled, time.perf_counter(), 0.0
-
-    def __call__(self, done: int, total: int) -> None:
-        import sys
-        import time
-
-        now = time.perf_counter()
-        if not self.enabled or (now - self.last < 0.25 and done < total):
-            return
-        self.last = now
-        frac = done / max(total, 1)
-        el = now - self.t0
-        eta = el / frac - el if frac > 0 else float("nan")
-        sys.stderr.write(f"\ravailability [{'#' * int(30 * frac):<30}] {100 * frac:5.1f}% "
-                         f"{done}/{total} user-epochs, {el:5.1f} s, eta {eta:5.1f} s")
-        if done >= total:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
-
-
-def run_availability(args) -> int:
-    """``raim availability``: check the inputs and outputs, run the study, write files."""
-    from raimcore._validate import check_range
-    from raimcore.studies.availability import availability
-
-    _check_file(args.out, "--out", ".html")
-    _check_file(args.png, "--png", ".png")
-    _check_file(args.csv, "--csv", ".csv")
-    if args.out is not None or args.png is not None or args.csv is None:
-        try:
-            import plotly  # noqa: F401
-        except ImportError as exc:
-            raise ValueError(f"the map needs plotly: pip install 'raim-studio[app]' "
-                             f"({exc}); --csv alone works without it") from None
-    from . import stanford
-
-    if args.png is not None and stanford.find_browser() is None:
-        raise ValueError(f"cannot write {str(args.png)!r}: {stanford.png_requirement()}")
-    target = check_range("--target", args.target, 0.0, 100.0) / 100.0
-    region = parse_region(args.region)
-    systems = [s.strip().upper() for s in args.systems.split(",") if s.strip()]
-    out = args.out
-    if out is None and args.png is None and args.csv is None:
-        out = Path("availability.html")
-    kw = dict(lat_step_deg=args.step, lon_step_deg=args.step, region=region,
-              t_step_s=args.t_step, duration_s=args.duration, height_m=args.height,
-              mask_deg=args.mask, ism=args.ism, user_model=args.user_model, target=target,
-              workers=args.workers, dask=args.dask,
-              constellation=args.almanac if args.almanac else "nominal")
-    names = {"lat_step_deg": "--step", "lon_step_deg": "--step", "t_step_s": "--t-step",
-             "duration_s": "--duration", "height_m": "--height", "mask_deg": "--mask",
-             "workers": "--workers", "region": "--region", "systems": "--systems",
-             "constellation": "--almanac", "dask": "--dask"}
-    bar = _Bar(not args.quiet)
-    try:
-        res = availability(systems, progress=bar, **kw)
-    except ValueError as exc:
-        msg = str(exc)
-        for key, opt in names.items():
-            if msg.startswith(key + " ") or msg.startswith(key + ":"):
-                msg = opt + msg[len(key):]
-                break
-        raise ValueError(msg) from None
-    for line in res.summary_lines():
-        print(line)
-    rate = res.n_user_epochs / res.wall_s if res.wall_s > 0 else float("nan")
-    where = f"Dask {args.dask}" if args.dask else (
-        f"{args.workers} processes" if args.workers > 1 else "in-process")
-    print(f"time {res.wall_s:.1f} s ({rate:.0f} user-epochs/s, {where})")
-    if args.csv is not None:
-        res.to_csv(args.csv)
-        print(f"grid written to {args.csv}")
-    if out is not None or args.png is not None:
-        from . import availability as figure
-
-        fig = figure.map_figure(res)
-        if out is not None:
-            figure.write_html(fig, out)
-            print(f"map written to {out}")
-        if args.png is not None:
-            figure.write_png(fig, args.png)
-            print(f"picture written to {args.png}")
     return 0
