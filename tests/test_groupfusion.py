@@ -169,3 +169,154 @@ def test_bad_options_raise_naming_the_parameter():
         gf.gf_isolate(h, np.zeros(8), g, P_FA, margin=2)
     with pytest.raises(ValueError, match="p_fa"):
         gf.gf_isolate(h, np.zeros(8), g, 0.0)
+
+
+# --------------------------------------------------------------------------------------
+# Agreement of the fast kernels (issue 17) with the plain-numpy reference path they replace:
+# one suite over seeded Monte Carlo inputs, several systems, batched and unbatched.
+
+#: Relative agreement of every statistic. theta is formed by subtraction from the group's
+#: pre-fit sum sum(w y^2) (normal equations, in both paths), so it is compared relative to
+#: the larger of itself and that sum: a group with theta ~ 1e-9 (far below any threshold,
+#: m(F) ~ 1e-5), or a nearly singular one (PDOP ~ 1e4), differs between any two summation
+#: orders in digits that the sum it came from does not carry.
+REL = 1e-9
+
+
+def _seeded_runs(seed, n_runs, n_sat, n_faults, systems=("GPS", "BDS"), bias_m=660.0):
+    from raimcore.studies import montecarlo as mc
+
+    return mc.simulate_runs(np.random.default_rng(seed), n_runs, n_sat, n_faults, bias_m,
+                            33.0, systems=systems)
+
+
+def _prefit(y, w, groups):
+    """sum(w y^2) of every group, (..., G)."""
+    w2 = np.broadcast_to(w, np.shape(y)) * np.square(y)
+    return w2 @ gf.membership_matrix(groups, np.shape(y)[-1]).T.astype(float)
+
+
+def _assert_stats_agree(a, b, prefit):
+    np.testing.assert_array_equal(a.ok, b.ok)
+    np.testing.assert_array_equal(a.dof, b.dof)
+    np.testing.assert_array_equal(a.threshold, b.threshold)
+    np.testing.assert_array_equal(np.isnan(a.theta), np.isnan(b.theta))
+    scale = np.maximum(np.abs(b.theta), prefit)
+    assert np.all(np.abs(a.theta - b.theta) <= REL * scale, where=a.ok)
+    np.testing.assert_allclose(a.pdop, b.pdop, rtol=REL)
+    # Decisions of each group test identical.
+    np.testing.assert_array_equal(a.theta > a.threshold, b.theta > b.threshold)
+
+
+@pytest.mark.parametrize("systems, n_sat, r", [
+    (("GPS", "BDS"), 14, 6), (("GPS", "BDS"), 18, 6), (("GPS", "BDS"), 22, 6),
+    (("GPS",), 9, 7),  # one clock, dof 3: the chdtr branch of m(F)
+    (("GPS", "BDS", "GAL", "GLO"), 16, 9),
+])
+def test_fast_group_chi2_agrees_with_the_reference_kernel(systems, n_sat, r):
+    h, y, _ = _seeded_runs(n_sat, 60, n_sat, 2, systems)
+    g = gf.select_groups(n_sat, r)
+    w = 33.0**-2
+    fast = gf.group_chi2(h, y, g, P_FA, w)
+    ref = gf.group_chi2(h, y, g, P_FA, w, reference=True)
+    assert fast.theta.shape == (60, len(g))
+    _assert_stats_agree(fast, ref, _prefit(y, w, g))
+    # Most groups agree to 1e-9 of theta itself, not only of the pre-fit sum.
+    close = np.abs(fast.theta - ref.theta) <= REL * ref.theta
+    assert np.mean(close[fast.ok]) > 0.99
+    # Unbatched, and per-satellite weights.
+    _assert_stats_agree(gf.group_chi2(h[3], y[3], g, P_FA, w),
+                        gf.group_chi2(h[3], y[3], g, P_FA, w, reference=True),
+                        _prefit(y[3], w, g))
+    wv = np.random.default_rng(1).uniform(0.5, 2.0, y.shape) * w
+    _assert_stats_agree(gf.group_chi2(h, y, g, P_FA, wv),
+                        gf.group_chi2(h, y, g, P_FA, wv, reference=True), _prefit(y, wv, g))
+    # ... and against one explicit least squares per group (independent of both).
+    for k, j in ((0, 0), (5, len(g) // 2), (59, len(g) - 1)):
+        hg = h[k, g[j]][:, np.abs(h[k, g[j]]).sum(0) > 0]
+        x, *_ = np.linalg.lstsq(hg, y[k, g[j]], rcond=None)
+        want = np.sum((y[k, g[j]] - hg @ x) ** 2) * w
+        assert abs(fast.theta[k, j] - want) <= 1e-9 * _prefit(y[k], w, g)[j]
+
+
+@pytest.mark.parametrize("n_sat, n_faults", [(14, 1), (18, 2), (22, 3)])
+def test_fast_isolators_make_the_reference_decisions(n_sat, n_faults):
+    h, y, _ = _seeded_runs(100 + n_sat, 250, n_sat, n_faults)
+    g = gf.select_groups(n_sat, 6)
+    w = 33.0**-2
+    a = gf.gf_isolate(h, y, g, P_FA, weights_lsq=w)
+    b = gf.gf_isolate(h, y, g, P_FA, weights_lsq=w, reference=True)
+    np.testing.assert_array_equal(a.isolated, b.isolated)
+    np.testing.assert_allclose(a.m_f, b.m_f, rtol=REL)
+    np.testing.assert_allclose(a.threshold, b.threshold, rtol=REL)
+    for norm in ("share", "max"):
+        qa = gf.qv_isolate(h, y, g, P_FA, weights_lsq=w, norm=norm)
+        qb = gf.qv_isolate(h, y, g, P_FA, weights_lsq=w, norm=norm, reference=True)
+        np.testing.assert_array_equal(qa[0], qb[0])
+        np.testing.assert_allclose(qa[1], qb[1], rtol=REL)
+    ra = gf.rs_isolate(h, y, P_FA, np.random.default_rng(7), weights_lsq=w)
+    rb = gf.rs_isolate(h, y, P_FA, np.random.default_rng(7), weights_lsq=w, reference=True)
+    np.testing.assert_array_equal(ra, rb)
+    # The comparison can fail: the isolators do isolate (and differ between seeds for RS).
+    assert a.isolated.any() and ra.any()
+    assert not np.array_equal(
+        ra, gf.rs_isolate(h, y, P_FA, np.random.default_rng(8), weights_lsq=w))
+
+
+def test_a_nan_run_does_not_poison_its_neighbours():
+    h, y, _ = _seeded_runs(3, 20, 16, 1)
+    g = gf.select_groups(16, 6)
+    clean = gf.group_chi2(h, y, g, P_FA, 33.0**-2)
+    y = y.copy()
+    y[4, 2] = np.nan
+    s = gf.group_chi2(h, y, g, P_FA, 33.0**-2)
+    keep = np.arange(20) != 4
+    np.testing.assert_array_equal(s.theta[keep], clean.theta[keep])
+    assert np.all(np.isnan(s.theta[4, np.any(g == 2, axis=-1)]))
+    ref = gf.group_chi2(h, y, g, P_FA, 33.0**-2, reference=True)
+    np.testing.assert_array_equal(np.isnan(s.theta), np.isnan(ref.theta))
+
+
+def test_gf_and_qv_share_group_statistics_but_never_stale_ones():
+    h, y, _ = _seeded_runs(4, 30, 16, 2)
+    g = gf.select_groups(16, 6)
+    r = gf.gf_isolate(h, y, g, P_FA, weights_lsq=33.0**-2)
+    with pytest.raises(ValueError, match="read-only"):
+        r.groups.theta[0, 0] = 0.0  # shared with the next caller: frozen
+    qv_shared = gf.qv_isolate(h, y, g, P_FA, weights_lsq=33.0**-2)
+    qv_fresh = gf.qv_isolate(h, y, g, P_FA, weights_lsq=33.0**-2, reference=True)
+    np.testing.assert_array_equal(qv_shared[0], qv_fresh[0])
+    # Mutating the inputs in place (same array objects) must give new statistics.
+    y[:, 5] += 2000.0
+    again = gf.gf_isolate(h, y, g, P_FA, weights_lsq=33.0**-2)
+    assert again.groups is not r.groups
+    assert again.isolated[:, 5].all()
+    np.testing.assert_array_equal(again.isolated, gf.gf_isolate(
+        h, y, g, P_FA, weights_lsq=33.0**-2, reference=True).isolated)
+    # Other weights or p_fa: not the cached answer either.
+    other = gf.gf_isolate(h, y, g, 1e-3, weights_lsq=33.0**-2)
+    assert not np.array_equal(other.groups.threshold, again.groups.threshold)
+
+
+@pytest.mark.parametrize("systems", [("GPS", "BDS"), ("GPS", "BDS", "GAL", "GLO")])
+def test_fast_propagation_is_the_constellation_propagation_bit_for_bit(systems):
+    from raimcore.studies import montecarlo as mc
+
+    t = np.random.default_rng(0).uniform(0.0, 86_400.0, 400)
+    fast = mc._positions_ecef_m(systems, t)
+    np.testing.assert_array_equal(fast, mc._constellation(systems).positions_ecef_m(t))
+    assert fast.shape == (400, len(mc._constellation(systems)), 3)
+
+
+def test_fuse_in_row_blocks_equals_one_product():
+    # fuse cuts its products into row blocks (BLAS on one thread); 300 runs x 400 groups
+    # x 20 satellites is 10 blocks, the last one short.
+    rng = np.random.default_rng(6)
+    g = gf.select_groups(20, 6, 400)
+    member = gf.membership_matrix(g, 20)
+    m_f = rng.random((300, len(g)))
+    alpha = np.where(rng.random(m_f.shape) < 0.1, 0.0, rng.uniform(0.1, 2.0, m_f.shape))
+    want = np.einsum("rg,rg,gn->rn", alpha, m_f, member) / np.einsum("rg,gn->rn", alpha,
+                                                                        member)
+    np.testing.assert_allclose(gf.fuse(m_f, alpha, member), want, rtol=1e-12)
+    np.testing.assert_allclose(gf.fuse(m_f[7], alpha[7], member), want[7], rtol=1e-12)

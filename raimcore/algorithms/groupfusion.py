@@ -5,8 +5,19 @@ Vectorised kernels for multi-fault isolation on a linearised pseudorange model
 ``(..., N, n)`` geometry rows for ``N`` satellites and ``n = 3 + q`` states (one-hot clock
 column per system), ``(..., N)`` measurements, and ``G`` groups of ``r`` satellites given
 as an index array ``(G, r)`` shared by the whole batch. Every group of every run is solved
-at once (normal equations over a ``(..., G, r, n)`` stack): there is no Python loop per
-group or per run.
+at once (normal-equation sums of all groups in one matrix product, then a closed-form solve
+on cache-sized blocks): there is no Python loop per group or per run.
+
+Speed (issue 17). The kernels keep their pre-issue plain-numpy versions as a reference path
+(``reference=True`` of :func:`group_chi2`, :func:`gf_isolate`, :func:`qv_isolate`,
+:func:`rs_isolate`); the agreement tests hold the fast path to the same decisions and to
+the reference statistics to 1e-9 relative (theta relative to the larger of itself and the
+group's pre-fit sum of squares, from which both paths form it by subtraction). What made
+it fast: no large temporaries (the solve works on blocks of 8192 groups), products cut so
+that BLAS never starts threads (they only spun against the other workers of a process
+pool), GF's group statistics reused by QV on the same runs, and RS growing its consistent
+set by adding one satellite's terms to the set's normal-equation sums instead of solving
+the whole set again.
 
 * :func:`select_groups` - the ``L1 = floor(L / K)`` groups at equal spacing ``K`` in the
   lexicographic list of all ``L = C(N, r)`` groups (seed 004 eqs. 1-2).
@@ -115,7 +126,8 @@ class GroupStats:
     ok: np.ndarray
 
 
-def group_chi2(h, y, groups, p_fa: float, weights=None) -> GroupStats:
+def group_chi2(h, y, groups, p_fa: float, weights=None, *,
+               reference: bool = False) -> GroupStats:
     """Least-squares residual chi-square of every group (seed 004 eqs. 5-7), batched.
 
     Parameters
@@ -126,6 +138,9 @@ def group_chi2(h, y, groups, p_fa: float, weights=None) -> GroupStats:
     groups : (G, r) satellite indices.
     p_fa : false-alarm probability of each group test.
     weights : (..., N) or scalar 1 / sigma^2 (1/m^2); default 1.
+    reference : use the plain-numpy reference kernel (:func:`_chi2_members_reference`,
+        slower; kept for the agreement tests and the benchmark) instead of the fast one.
+        Both make the same decisions and agree to round-off (see :func:`_chi2_members`).
 
     Returns
     -------
@@ -134,11 +149,211 @@ def group_chi2(h, y, groups, p_fa: float, weights=None) -> GroupStats:
     h = np.asarray(h, dtype=float)
     y = np.asarray(y, dtype=float)
     member = membership_matrix(np.asarray(groups), y.shape[-1]).astype(float)
-    return _chi2_members(h, y, member, p_fa, weights)
+    kernel = _chi2_members_reference if reference else _chi2_members
+    return kernel(h, y, member, p_fa, weights)
+
+
+#: Largest number of group statistics (runs x groups) kept by :func:`_group_chi2_memo`
+#: (a Monte Carlo chunk of 250 runs x 484 groups is 121,000; 2^18 of each array is 2 MB).
+_MEMO_MAX = 1 << 18
+_memo: tuple | None = None
+
+
+def _same(a, b) -> bool:
+    if a is None or b is None:
+        return a is b
+    return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b)
+
+
+def _group_chi2_memo(h, y, groups, p_fa: float, weights) -> GroupStats:
+    """:func:`group_chi2`, remembering the last answer.
+
+    GF and QV test the same groups on the same runs (a Monte Carlo chunk runs both on the
+    same ``h``, ``y``), so the second asks for exactly the statistics the first computed.
+    The inputs are compared by value (a copy is kept), so a changed array is never served
+    stale statistics; the arrays returned are read-only. Small batches only
+    (:data:`_MEMO_MAX`), so a long recording is not held in memory.
+    """
+    global _memo
+    h = np.asarray(h, dtype=float)
+    y = np.asarray(y, dtype=float)
+    groups = np.asarray(groups)
+    w = None if weights is None else np.asarray(weights, dtype=float)
+    m = _memo
+    if (m is not None and m[3] == p_fa and _same(m[0], h) and _same(m[1], y)
+            and _same(m[2], groups) and _same(m[4], w)):
+        return m[5]
+    stats = group_chi2(h, y, groups, p_fa, w)
+    if stats.theta.size <= _MEMO_MAX:
+        for v in vars(stats).values():
+            v.flags.writeable = False
+        _memo = (h.copy(), y.copy(), groups.copy(), p_fa, None if w is None else w.copy(),
+                 stats)
+    return stats
 
 
 def _chi2_members(h, y, member, p_fa, weights=None) -> GroupStats:
     """group_chi2 for groups given as a 0/1 membership matrix ``(G, N)`` or ``(..., G, N)``.
+
+    Normal equations by sums over members: every satellite contributes ``w h h^T``,
+    ``w h y`` and ``w y^2`` (:func:`_features`); one matrix product with the membership
+    matrix gives every group's sums at once (:func:`_member_sums`). The clock columns are
+    one-hot, so the clock block of the normal matrix is diagonal (satellite count per
+    system) and is eliminated in closed form (Schur complement); the remaining 3 x 3
+    position block is inverted by its adjugate (:func:`_solve_sums`). All of it is
+    element-wise arithmetic on cache-sized blocks of the ``(..., G)`` arrays: no per-group
+    solve, no large temporaries. Agrees with :func:`_chi2_members_reference` to round-off.
+    """
+    h = np.asarray(h, dtype=float)
+    y = np.asarray(y, dtype=float)
+    member = np.asarray(member, dtype=float)
+    q = h.shape[-1] - 3
+    batch = np.broadcast_shapes(h.shape[:-1], y.shape)
+    y = np.broadcast_to(y, batch)
+    w = (np.ones(batch) if weights is None
+         else np.broadcast_to(np.asarray(weights, dtype=float), batch))
+    sums = _member_sums(_features(h, y, w), member)  # (F, ..., G)
+    shape = sums.shape[1:]
+    theta, pdop, regular, n_sys = (v.reshape(shape) for v in
+                                   _solve_sums(sums.reshape(len(sums), -1), q))
+    dof = np.rint(np.sum(member, axis=-1)).astype(int) - 3 - n_sys  # spec 4: r - 3 - q_g
+    ok = regular & (dof >= 1) & np.isfinite(pdop) & (pdop < PDOP_MAX) & (pdop > 0)
+    theta = np.where(ok, np.maximum(theta, 0.0), np.nan)
+    return GroupStats(theta, dof, _thresholds(dof, p_fa), np.where(ok, pdop, np.inf), ok)
+
+
+def _thresholds(dof, p_fa):
+    """T = chi2.isf(p_fa, max(dof, 1)) (eq. 7), one scipy call per dof value."""
+    dof_safe = np.maximum(dof, 1)
+    if dof_safe.size == 0:
+        return np.zeros(dof_safe.shape)
+    table = special.chdtri(np.arange(1, int(dof_safe.max()) + 1), p_fa)
+    return table[dof_safe - 1]
+
+
+#: Index pairs (i <= j) of the symmetric 3 x 3 position block of the normal matrix.
+_IU = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+
+#: Elements of the (..., G) arrays handled at once by the closed-form solve: about 40 of
+#: them stay in a core's L2 cache (8192 x 8 B = 64 kB each) instead of streaming the whole
+#: batch through memory once per arithmetic operation.
+_BLOCK = 8192
+
+
+def _features(h, y, w):
+    """Per-satellite terms of the normal equations, ``(F, ..., N)``, ``F = 10 + 5 q``.
+
+    Rows: the 6 upper-triangle products ``w u_i u_j``; for each system k the 3 ``w c_k u_j``
+    and then the q ``w c_k``; the ``3 + q`` of ``w h y``; ``w y^2``.
+    """
+    n = h.shape[-1]
+    q = n - 3
+    ht = np.moveaxis(h, -1, 0)  # (n, ..., N) view
+    hw = ht * w
+    f = np.empty((10 + 5 * q,) + y.shape)
+    for k, (i, j) in enumerate(_IU):
+        np.multiply(hw[i], ht[j], out=f[k])
+    for c in range(q):
+        for j in range(3):
+            np.multiply(hw[3 + c], ht[j], out=f[6 + 3 * c + j])
+    f[6 + 3 * q:6 + 4 * q] = hw[3:]
+    np.multiply(hw, y, out=f[6 + 4 * q:9 + 5 * q])
+    np.multiply(w * y, y, out=f[9 + 5 * q])
+    return f
+
+
+def _matmul_rows(a, b):
+    """``a (..., K) @ b (K, P)`` in blocks of rows small enough that BLAS keeps each on one
+    thread (OpenBLAS threads a product once ``m n k`` exceeds about 2^18).
+
+    Threads do not pay on products this thin (K and P are tens to hundreds), and in a
+    process pool of one worker per core their spin-waiting takes the other workers' cores:
+    unblocked, the two products of :func:`fuse` took a third of a Monte Carlo chunk's CPU
+    time.
+    """
+    k, p = b.shape
+    flat = np.ascontiguousarray(a).reshape(-1, k)
+    out = np.empty((flat.shape[0], p))
+    rows = max(1, (1 << 18) // max(k * p, 1))
+    for i in range(0, flat.shape[0], rows):
+        np.matmul(flat[i:i + rows], b, out=out[i:i + rows])
+    return out.reshape(a.shape[:-1] + (p,))
+
+
+def _member_sums(f, member):
+    """Every group's normal-equation sums ``(F, ..., G)`` from the features ``(F, ..., N)``.
+
+    ``member`` is ``(G, N)``, shared by the batch: one matrix product (:func:`_matmul_rows`),
+    or ``(..., G, N)``, one small product per run.
+    """
+    if member.ndim == 2:
+        return _matmul_rows(f, member.T)
+    sums = np.matmul(np.moveaxis(f, 0, -2), np.swapaxes(member, -1, -2))  # (..., F, G)
+    return np.ascontiguousarray(np.moveaxis(sums, -2, 0))
+
+
+def _solve_sums(s, q):
+    """Closed-form group solve from normal-equation sums ``s`` ``(F, M)`` (contiguous rows).
+
+    Eliminates the diagonal clock block (Schur complement) and inverts the 3 x 3 position
+    block by its adjugate. Returns ``theta, pdop, regular, n_sys`` each ``(M,)`` (theta not
+    yet clamped, pdop possibly non-finite).
+    """
+    m = s.shape[1]
+    theta = np.empty(m)
+    pdop = np.empty(m)
+    regular = np.empty(m, dtype=bool)
+    n_sys = np.zeros(m, dtype=np.int64)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        for lo in range(0, m, _BLOCK):
+            sl = slice(lo, lo + _BLOCK)
+            blk = s[:, sl]
+            # Position block and right-hand side, then their Schur complements (the first
+            # clock's update makes new arrays, the next ones work in place).
+            a = list(blk[:6])
+            gp = list(blk[6 + 4 * q:9 + 4 * q])
+            th = blk[9 + 5 * q]
+            for c in range(q):
+                d = blk[6 + 3 * q + c]
+                present = d > 0.0
+                n_sys[sl] += present
+                dinv = np.divide(1.0, d, out=np.zeros_like(d), where=present)
+                b = blk[6 + 3 * c:9 + 3 * c]
+                gc = blk[9 + 4 * q + c]
+                bd = b * dinv
+                for k, (i, j) in enumerate(_IU):
+                    if c:
+                        a[k] -= bd[i] * b[j]
+                    else:
+                        a[k] = a[k] - bd[i] * b[j]
+                for i in range(3):
+                    if c:
+                        gp[i] -= bd[i] * gc
+                    else:
+                        gp[i] = gp[i] - bd[i] * gc
+                th = th - dinv * gc * gc
+            a00, a01, a02, a11, a12, a22 = a
+            c00 = a11 * a22 - a12 * a12
+            c01 = a02 * a12 - a01 * a22
+            c02 = a01 * a12 - a02 * a11
+            c11 = a00 * a22 - a02 * a02
+            c12 = a01 * a02 - a00 * a12
+            c22 = a00 * a11 - a01 * a01
+            det = a00 * c00 + a01 * c01 + a02 * c02
+            g0, g1, g2 = gp
+            quad = (c00 * g0 * g0 + c11 * g1 * g1 + c22 * g2 * g2
+                    + 2.0 * (c01 * g0 * g1 + c02 * g0 * g2 + c12 * g1 * g2))
+            np.subtract(th, quad / det, out=theta[sl])
+            np.sqrt((c00 + c11 + c22) / det, out=pdop[sl])
+            regular[sl] = np.isfinite(det) & (det > 1e-12 * np.abs(a00 * a11 * a22))
+    return theta, pdop, regular, n_sys
+
+
+def _chi2_members_reference(h, y, member, p_fa, weights=None) -> GroupStats:
+    """The plain-numpy reference of :func:`_chi2_members` (the kernel before issue 17).
+
+    Kept for the agreement tests and the benchmark. Groups given as a 0/1 membership
+    matrix ``(G, N)`` or ``(..., G, N)``.
 
     Normal equations by sums over members: every satellite contributes ``w h h^T``,
     ``w h y`` and ``w y^2``; one matrix product with the membership matrix gives every
@@ -225,24 +440,45 @@ def basic_belief(theta, dof, p_fa: float):
     dof = np.asarray(dof)
     theta, dof = np.broadcast_arrays(theta, dof)
     out = np.full(theta.shape, np.nan)
-    for d in np.unique(dof):  # a handful of dof values: closed forms for 1 and 2
-        sel = dof == d
+    values = _distinct(dof)
+    for d in values:  # a handful of dof values: closed forms for 1 and 2
+        sel = dof == d if len(values) > 1 else Ellipsis  # one value: no gather, no scatter
         x = theta[sel]
         t = float(special.chdtri(d, p_fa))
-        cdf, sf = _chi2_cdf_sf(x, int(d))
-        cdf_t, sf_t = _chi2_cdf_sf(np.array(t), int(d))
-        out[sel] = np.where(x <= t, 0.5 * cdf / cdf_t, 0.5 + 0.5 * (1.0 - sf / sf_t))
+        cdf_t, sf_t = _chi2_cdf(np.array(t), int(d)), _chi2_sf(np.array(t), int(d))
+        m_f = np.asarray(0.5 * _chi2_cdf(x, int(d)) / cdf_t)
+        upper = ~(x <= t)  # and NaN; the survival function only where it is used
+        if upper.any():
+            m_f[upper] = 0.5 + 0.5 * (1.0 - _chi2_sf(x[upper], int(d)) / sf_t)
+        out[sel] = m_f
     return out if out.ndim else float(out)
 
 
-def _chi2_cdf_sf(x, dof: int):
-    """chi2(dof) CDF and survival function, each computed directly (no 1 - F)."""
+def _distinct(values) -> np.ndarray:
+    """The distinct values of an array, sorted (a bincount for small integers)."""
+    if values.size and values.dtype.kind in "iu":
+        lo = int(values.min())
+        if int(values.max()) - lo < 4096:
+            return np.flatnonzero(np.bincount((values - lo).ravel())) + lo
+    return np.unique(values)
+
+
+def _chi2_cdf(x, dof: int):
+    """chi2(dof) CDF, closed forms for 1 and 2 degrees of freedom."""
     if dof == 1:
-        z = np.sqrt(0.5 * np.maximum(x, 0.0))
-        return special.erf(z), special.erfc(z)
+        return special.erf(np.sqrt(0.5 * np.maximum(x, 0.0)))
     if dof == 2:
-        return -np.expm1(-0.5 * x), np.exp(-0.5 * x)
-    return special.chdtr(dof, x), special.chdtrc(dof, x)
+        return -np.expm1(-0.5 * x)
+    return special.chdtr(dof, x)
+
+
+def _chi2_sf(x, dof: int):
+    """chi2(dof) survival function, computed directly (never 1 - CDF)."""
+    if dof == 1:
+        return special.erfc(np.sqrt(0.5 * np.maximum(x, 0.0)))
+    if dof == 2:
+        return np.exp(-0.5 * x)
+    return special.chdtrc(dof, x)
 
 
 def combine_pair(m1_f, alpha1, m2_f, alpha2):
@@ -282,8 +518,8 @@ def fuse(m_f, alpha, membership):
     """
     member = np.asarray(membership, dtype=float)
     a = np.where(alpha > 0, alpha, 0.0)
-    num = np.where(a > 0, a * m_f, 0.0) @ member
-    den = a @ member
+    num = _matmul_rows(np.where(a > 0, a * m_f, 0.0), member)
+    den = _matmul_rows(a, member)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0, num / den, np.nan)
 
@@ -335,7 +571,7 @@ def _alpha(stats: GroupStats, weights: str):
 
 
 def gf_isolate(h, y, groups, p_fa: float, *, weights_lsq=None, margin: float = 0.1,
-               weights: str = "pdop") -> GFResult:
+               weights: str = "pdop", reference: bool = False) -> GFResult:
     """Group detection + evidence fusion + adaptive threshold (seed 004), batched.
 
     Parameters
@@ -345,13 +581,16 @@ def gf_isolate(h, y, groups, p_fa: float, *, weights_lsq=None, margin: float = 0
     weights_lsq : (..., N) or scalar 1 / sigma^2 (1/m^2).
     margin : M of eq. 3 (paper 0.1 .. 0.2; spec default 0.1).
     weights : reliability p of a group, one of :data:`WEIGHTS`.
+    reference : group statistics from the plain-numpy reference kernel (see
+        :func:`group_chi2`); the default fast kernel makes the same decisions.
 
     Returns
     -------
     GFResult
     """
     _check_common(p_fa, margin, weights)
-    stats = group_chi2(h, y, groups, p_fa, weights_lsq)
+    stats = (group_chi2(h, y, groups, p_fa, weights_lsq, reference=True) if reference
+             else _group_chi2_memo(h, y, groups, p_fa, weights_lsq))
     m_f = basic_belief(stats.theta, stats.dof, p_fa)
     alpha = _alpha(stats, weights)
     fused = fuse(m_f, alpha, membership_matrix(groups, np.shape(y)[-1]))
@@ -391,7 +630,7 @@ def _gather_chi2(h, y, idx, p_fa, weights_lsq):
     b, d, _ = idx.shape
     member = np.zeros((b, d, y.shape[-1]))
     np.put_along_axis(member, idx, 1.0, axis=-1)
-    return _chi2_members(h, y, member, p_fa, weights_lsq)
+    return _chi2_members_reference(h, y, member, p_fa, weights_lsq)
 
 
 def _masked_chi2(h, y, w, mask, p_fa):
@@ -410,7 +649,7 @@ def _masked_chi2(h, y, w, mask, p_fa):
 
 
 def rs_isolate(h, y, p_fa: float, rng: np.random.Generator, *, weights_lsq=None,
-               n_draws: int = 50, size: int | None = None):
+               n_draws: int = 50, size: int | None = None, reference: bool = False):
     """Random search (Chen & Zhang 2011, seed 004's ref. [5]), batched over runs.
 
     Reading (the paper gives no detail, spec 4 "under-specified"): draw ``n_draws`` random
@@ -422,9 +661,17 @@ def rs_isolate(h, y, p_fa: float, rng: np.random.Generator, *, weights_lsq=None,
     consistent set: a satellite whose addition makes the test fail is isolated (and left
     out), otherwise it joins the set.
 
+    The chi-square of a set grown by one satellite comes from the set's normal-equation
+    sums plus that satellite's terms (the closed-form solve of :func:`_chi2_members`), not
+    from a new solve of the whole set.
+
     Parameters
     ----------
     h : (B, N, 3 + q); y : (B, N); rng : random generator.
+    weights_lsq : (B, N) or scalar 1 / sigma^2 (1/m^2); default 1.
+    n_draws : random subsets drawn per run; size : satellites in each (default 4 + q).
+    reference : run the pre-issue-17 path (each grown set solved again from scratch);
+        same random draws, same decisions. For the agreement tests and the benchmark.
 
     Returns
     -------
@@ -436,6 +683,51 @@ def rs_isolate(h, y, p_fa: float, rng: np.random.Generator, *, weights_lsq=None,
     n_draws = check_int("n_draws", n_draws, 1, 10_000)
     b, n = y.shape
     size = h.shape[-1] + 1 if size is None else check_int("size", size, 2, n - 1)
+    if reference:
+        return _rs_isolate_reference(h, y, p_fa, rng, weights_lsq, n_draws, size)
+    q = h.shape[-1] - 3
+    w = (np.ones_like(y) if weights_lsq is None
+         else np.broadcast_to(np.asarray(weights_lsq, dtype=float), y.shape))
+    keys = rng.random((b, n_draws, n))
+    # Each draw's subset: the satellites with the `size` smallest keys.
+    member = (keys <= np.partition(keys, size - 1, axis=-1)[..., size - 1:size]).astype(float)
+    feats = _features(h, y, w)  # (F, B, N)
+    sums = _member_sums(feats, member)  # (F, B, D)
+    theta, pdop, regular, n_sys = (v.reshape(b, n_draws) for v in
+                                   _solve_sums(sums.reshape(len(sums), -1), q))
+    dof = size - 3 - n_sys
+    ok = regular & (dof >= 1) & np.isfinite(pdop) & (pdop < PDOP_MAX) & (pdop > 0)
+    # >= 2 satellites of every system present in the run (see above).
+    clk = h[..., 3:]
+    count = member @ clk  # (B, D, q)
+    present = clk.sum(axis=-2) > 0
+    sys_ok = np.all((count >= 2) | ~present[:, None, :], axis=-1)
+    ratio = np.where(ok & sys_ok, np.maximum(theta, 0.0) / _thresholds(dof, p_fa), np.inf)
+    passing = ratio <= 1.0
+    first = np.where(passing.any(axis=-1), np.argmax(passing, axis=-1),
+                     np.argmin(ratio, axis=-1))
+    rows = np.arange(b)
+    consistent = member[rows, first] > 0.0
+    isolated = np.zeros((b, n), dtype=bool)
+    order = np.argsort(np.where(consistent, np.inf, rng.random((b, n))), axis=-1)
+    set_sums = np.ascontiguousarray(sums[:, rows, first])  # (F, B) of the consistent sets
+    n_set = np.full(b, size)
+    for step in range(n - size):  # one satellite per run per step, all runs at once
+        j = order[:, step]
+        trial = set_sums + feats[:, rows, j]
+        stat, _, regular, n_sys = _solve_sums(trial, q)
+        dof = n_set + 1 - 3 - n_sys
+        fail = regular & (stat > _thresholds(dof, p_fa))
+        isolated[rows, j] = fail
+        set_sums = np.where(fail, set_sums, trial)
+        n_set += ~fail
+    return isolated
+
+
+def _rs_isolate_reference(h, y, p_fa, rng, weights_lsq, n_draws, size):
+    """:func:`rs_isolate` as it was before issue 17: every test of a growing set solved
+    again from scratch (``_masked_chi2``). Reference for the agreement tests."""
+    b, n = y.shape
     w = (np.ones_like(y) if weights_lsq is None
          else np.broadcast_to(np.asarray(weights_lsq, dtype=float), y.shape))
     keys = rng.random((b, n_draws, n))
@@ -461,8 +753,10 @@ def rs_isolate(h, y, p_fa: float, rng: np.random.Generator, *, weights_lsq=None,
     return isolated
 
 
+
+
 def qv_isolate(h, y, groups, p_fa: float, *, weights_lsq=None, margin: float = 0.1,
-               norm: str = "share"):
+               norm: str = "share", reference: bool = False):
     """Quality value / confidence index (Patino-Studencka et al. 2010, seed 004's ref. [6]).
 
     Reading (spec 4): test the same groups as GF; only failing groups give their members a
@@ -470,13 +764,14 @@ def qv_isolate(h, y, groups, p_fa: float, *, weights_lsq=None, margin: float = 0
     of eq. 3 a scale, the sums are normalised: ``norm="share"`` (default) divides by the number of
     groups the satellite is in (the share of its groups that fail), ``norm="max"`` by the
     largest sum of the run (much worse: 24% vs 84% for N = 18, one fault at 1.5 P_bias).
-    Isolate with mean + M.
+    Isolate with mean + M. ``reference`` as in :func:`gf_isolate`.
 
     Returns ``(isolated (..., N) bool, score (..., N), threshold (...))``.
     """
     check_probability("p_fa", p_fa)
     check_range("margin", margin, 0.0, 1.0)
-    st = group_chi2(h, y, groups, p_fa, weights_lsq)
+    st = (group_chi2(h, y, groups, p_fa, weights_lsq, reference=True) if reference
+          else _group_chi2_memo(h, y, groups, p_fa, weights_lsq))
     fail = np.where(st.ok, (st.theta > st.threshold).astype(float), 0.0)
     check_choice("norm", norm, ("max", "share"))
     member = membership_matrix(groups, np.shape(y)[-1])

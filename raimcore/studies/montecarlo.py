@@ -125,6 +125,42 @@ def _constellation(systems: tuple[str, ...]):
     return builtin(systems)
 
 
+@functools.lru_cache(maxsize=8)
+def _circular_terms(systems: tuple[str, ...]):
+    """Time-independent terms of :meth:`Constellation.positions_ecef_m` for ``systems``,
+    or None when an orbit is not circular (then the general propagation is used)."""
+    c = _constellation(systems)
+    if np.any(c.ecc != 0.0):
+        return None
+    a = c.sqrt_a**2
+    return {"r": a, "n0": np.sqrt(c.gm_m3ps2 / a**3), "toa": c.toa_s, "m0": c.m0_rad,
+            "argp": c.argp_rad, "om0": c.omega0_rad, "om_rate": c.omega_dot_radps
+            - c.omega_e_radps, "om_toa": c.omega_e_radps * c.toa_s,
+            "ci": np.cos(c.inc_rad), "si": np.sin(c.inc_rad)}
+
+
+def _positions_ecef_m(systems: tuple[str, ...], t_s) -> np.ndarray:
+    """ECEF positions ``(E, S, 3)`` of the nominal ``systems`` at times ``t_s`` ``(E,)``.
+
+    Bit for bit :meth:`Constellation.positions_ecef_m` (IS-GPS-200 table 20-IV): for the
+    circular orbits of the nominal constellations (e = 0) its Newton iterations on Kepler's
+    equation return ``E = M`` exactly, ``sqrt(1 - e^2) sin E = sin E``, ``cos E - e = cos E``
+    and ``r = a``, so those 20 sines and cosines per satellite and epoch are skipped and the
+    time-independent terms computed once.
+    """
+    k = _circular_terms(systems)
+    if k is None:
+        return _constellation(systems).positions_ecef_m(t_s)
+    tk = np.asarray(t_s, dtype=float)[..., None] - k["toa"]
+    mk = k["m0"] + k["n0"] * tk
+    u = np.arctan2(np.sin(mk), np.cos(mk)) + k["argp"]
+    om = k["om0"] + k["om_rate"] * tk - k["om_toa"]
+    xp, yp = k["r"] * np.cos(u), k["r"] * np.sin(u)
+    co, so = np.cos(om), np.sin(om)
+    return np.stack([xp * co - yp * k["ci"] * so, xp * so + yp * k["ci"] * co, yp * k["si"]],
+                    axis=-1)
+
+
 def random_geometry(rng: np.random.Generator, n_runs: int, n_visible: int,
                     mask_deg: float = 5.0, min_per_system: int = 2,
                     systems: Sequence[str] = DEFAULT_SYSTEMS):
@@ -135,6 +171,8 @@ def random_geometry(rng: np.random.Generator, n_runs: int, n_visible: int,
     more than ``n_visible`` satellites are above the mask, a random ``n_visible`` of them
     are tracked; draws with fewer, or with fewer than ``min_per_system`` of a system
     among the tracked ones, are rejected and redrawn (so every run has every clock).
+    Satellites are propagated by :func:`_positions_ecef_m` (bit for bit the constellation's
+    own propagation, without its Kepler iterations on these circular orbits).
 
     Returns
     -------
@@ -157,7 +195,7 @@ def random_geometry(rng: np.random.Generator, n_runs: int, n_visible: int,
         lat = np.arcsin(rng.uniform(-1.0, 1.0, m))
         lon = rng.uniform(-np.pi, np.pi, m)
         keys = rng.random((m, len(const)))
-        sv = const.positions_ecef_m(t)  # (m, S, 3)
+        sv = _positions_ecef_m(systems, t)  # (m, S, 3)
         rx = geodetic_to_ecef(lat, lon, 0.0)
         u, _ = los_enu(sv, rx)
         vis = u[..., 2] >= math.sin(math.radians(mask_deg))
