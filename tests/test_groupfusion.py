@@ -320,3 +320,19 @@ def test_fuse_in_row_blocks_equals_one_product():
                                                                         member)
     np.testing.assert_allclose(gf.fuse(m_f, alpha, member), want, rtol=1e-12)
     np.testing.assert_allclose(gf.fuse(m_f[7], alpha[7], member), want[7], rtol=1e-12)
+
+
+@pytest.mark.parametrize(("n_sat", "r", "n_groups"), [
+    (6, 4, None), (9, 5, 20), (12, 6, "all"), (13, 5, 1), (22, 6, None), (17, 8, 300)])
+def test_groups_are_itertools_combinations_at_equal_spacing(n_sat, r, n_groups):
+    import itertools
+
+    got = gf.select_groups(n_sat, r, n_groups)
+    total = math.comb(n_sat, r)
+    want_n = total if n_groups == "all" else min(n_sat**2 if n_groups is None else n_groups,
+                                                 total)
+    step = 1 if want_n >= total else total // want_n
+    count = total if step == 1 else total // step
+    ref = list(itertools.islice(itertools.combinations(range(n_sat), r), 0, step * count,
+                                step))
+    assert got.tolist() == [list(c) for c in ref]
