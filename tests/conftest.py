@@ -1,6 +1,7 @@
 """Shared fixtures and paths for the test suite."""
 
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,10 @@ from hypothesis import settings
 settings.register_profile("repeatable", derandomize=True)
 settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
+
+# Caches the code keeps across runs (PF-LLR's calibrated thresholds) go to a folder of
+# this test session, never the user's ~/.cache: every run starts cold.
+os.environ.setdefault("RAIM_STUDIO_CACHE_DIR", tempfile.mkdtemp(prefix="raim-test-cache-"))
 
 REPO = Path(__file__).resolve().parents[1]
 # Real data lives beside the repository (../shared/data); tests skip cleanly without it.

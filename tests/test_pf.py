@@ -1,6 +1,7 @@
 """Particle-filter kernels and the PF-LLR algorithm (seed 002, spec section 3)."""
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -13,6 +14,17 @@ from raimcore.pipeline import run_scenario, simulate
 from raimcore.scenario import load_scenario
 
 ONE_CM = 0.01
+ONE_NM = 1e-9
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _private_tau_cache(tmp_path_factory):
+    """PF-LLR's thresholds go to a disk cache by default: keep this module's out of the
+    user's cache directory."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("RAIM_STUDIO_CACHE_DIR", str(tmp_path_factory.mktemp("tau-cache")))
+    yield
+    mp.undo()
 
 
 def test_systematic_resample_keeps_expected_counts():
@@ -154,6 +166,9 @@ def test_moving_receiver_with_constant_velocity_model():
 
 
 def test_user_tau_is_used_and_calibration_is_cached(monkeypatch, tmp_path):
+    """tau is calibrated once per configuration: kept in memory, and on disk (the default)
+    so that a new process (an empty memory cache) reads it back instead of recomputing;
+    a change of what it depends on (the noise sigma) is another key."""
     calls = []
     real = pf.calibrate_tau
 
@@ -163,6 +178,8 @@ def test_user_tau_is_used_and_calibration_is_cached(monkeypatch, tmp_path):
 
     monkeypatch.setattr(pf_llr, "calibrate_tau", counting)
     monkeypatch.setattr(pf, "_TAU_CACHE", {})
+    monkeypatch.delenv("RAIM_STUDIO_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     s = load_scenario("seed002", algorithm="pf-llr", duration_s=100, n_particles=20)
     t1 = run_scenario(s).table
     t2 = run_scenario(s.replace(seed=9, faults=[])).table  # same geometry: cache hit
@@ -170,14 +187,103 @@ def test_user_tau_is_used_and_calibration_is_cached(monkeypatch, tmp_path):
     assert np.nanmax(t1["threshold"]) == np.nanmax(t2["threshold"])
     t3 = run_scenario(s.replace(tau=123.5)).table
     assert len(calls) == 1 and np.nanmax(t3["threshold"]) == 123.5
-    # Disk cache only when asked, under $XDG_CACHE_HOME.
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    # The fault-free samples are kept, not tau: another p_fa is a new quantile of them.
+    t5 = run_scenario(s.replace(p_fa_window=0.05)).table
+    assert len(calls) == 1 and np.nanmax(t5["threshold"]) < np.nanmax(t1["threshold"])
+    # On disk by default, under $XDG_CACHE_HOME/raim-studio: a fresh process reads it.
+    stored = list((tmp_path / "raim-studio" / "pf_llr_tau").glob("*.json"))
+    assert len(stored) == 1
     monkeypatch.setattr(pf, "_TAU_CACHE", {})
-    run_scenario(s.replace(tau_cache="disk"))
-    assert (tmp_path / "raimcore" / "pf_llr_tau.json").is_file()
+    t4 = run_scenario(s.replace(seed=4)).table
+    assert len(calls) == 1 and np.nanmax(t4["threshold"]) == np.nanmax(t1["threshold"])
+    # Another noise sigma is another calibration (and another file).
+    run_scenario(s.replace(sigma_m=4.0))
+    assert len(calls) == 2
+    assert len(list(stored[0].parent.glob("*.json"))) == 2
+    # "memory" never touches the disk; "off" always recomputes.
     monkeypatch.setattr(pf, "_TAU_CACHE", {})
-    run_scenario(s.replace(tau_cache="disk"))
-    assert len(calls) == 2  # the second process-fresh run read the file
+    run_scenario(s.replace(tau_cache="memory", n_particles=21))
+    assert len(list(stored[0].parent.glob("*.json"))) == 2 and len(calls) == 3
+    run_scenario(s.replace(tau_cache="off"))
+    run_scenario(s.replace(tau_cache="off"))
+    assert len(calls) == 5
+
+
+def test_threshold_changes_retest_the_same_bank_run(monkeypatch):
+    """A change of the threshold options alone (tau, p_fa_window) re-tests the kept bank
+    run, with the result of a fresh run; a change of what the run reads (the noise
+    sigma, the seed, N) runs the bank again."""
+    calls = []
+    real = pf_llr.run_llr_bank
+
+    def counting(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(pf_llr, "run_llr_bank", counting)
+    monkeypatch.setattr(pf_llr, "_BANK_RUNS", type(pf_llr._BANK_RUNS)())
+    s = load_scenario("seed002", algorithm="pf-llr", duration_s=120, n_particles=30)
+    first = run_scenario(s).table
+    again = run_scenario(s.replace(p_fa_window=0.01)).table
+    user = run_scenario(s.replace(tau=40.0)).table
+    assert len(calls) == 1
+    np.testing.assert_array_equal(again["beta"], first["beta"])
+    assert np.nanmax(user["threshold"]) == 40.0
+    assert np.array_equal(user["alarm"], np.nan_to_num(np.asarray(user["beta"], float)) > 40)
+    monkeypatch.setattr(pf_llr, "_BANK_RUNS", type(pf_llr._BANK_RUNS)())
+    fresh = run_scenario(s.replace(p_fa_window=0.01)).table
+    np.testing.assert_array_equal(fresh["beta"], again["beta"])
+    np.testing.assert_array_equal(fresh["alarm"], again["alarm"])
+    for change in ({"sigma_m": 4.0}, {"seed": 3}, {"n_particles": 31}):
+        run_scenario(s.replace(**change))
+    assert len(calls) == 5 and len(pf_llr._BANK_RUNS) == pf_llr.BANK_RUN_CACHE_SIZE
+    monkeypatch.setattr(pf_llr, "BANK_RUN_CACHE_BYTES", 0)  # too big to keep: rerun
+    run_scenario(s.replace(seed=21))
+    run_scenario(s.replace(seed=21, p_fa_window=0.01))
+    assert len(calls) == 7
+
+
+def test_disk_cache_is_keyed_safe_and_falls_back_to_memory(monkeypatch, tmp_path):
+    """The disk cache: RAIM_STUDIO_CACHE_DIR overrides the location; an entry of another
+    key or a damaged file is recomputed, never trusted; a directory that cannot be written
+    keeps the threshold in memory (one warning) and still returns it."""
+    monkeypatch.setattr(pf, "_TAU_CACHE", {})
+    monkeypatch.setenv("RAIM_STUDIO_CACHE_DIR", str(tmp_path / "c"))
+    assert pf.default_cache_path() == tmp_path / "c" / "pf_llr_tau"
+    computed = []
+
+    def compute(value):
+        def f():
+            computed.append(value)
+            return value
+        return f
+
+    assert pf.cached_tau("k1", compute(1.5)) == 1.5
+    monkeypatch.setattr(pf, "_TAU_CACHE", {})
+    assert pf.cached_tau("k1", compute(9.0)) == 1.5 and computed == [1.5]
+    (entry,) = (tmp_path / "c" / "pf_llr_tau").glob("*.json")
+    entry.write_text('{"key": "k1", "tau": "')  # damaged
+    monkeypatch.setattr(pf, "_TAU_CACHE", {})
+    assert pf.cached_tau("k1", compute(2.5)) == 2.5
+    entry.write_text('{"key": "another", "tau": 7.0}')  # a hash collision, in effect
+    monkeypatch.setattr(pf, "_TAU_CACHE", {})
+    assert pf.cached_tau("k1", compute(3.5)) == 3.5
+    # Not writable (a file where the directory should be): memory only, one warning.
+    blocker = tmp_path / "blocked"
+    blocker.write_text("")
+    monkeypatch.setattr(pf, "_DISK_WARNED", set())
+    with pytest.warns(UserWarning, match="not writable"):
+        assert pf.cached_tau("k2", compute(4.5), path=blocker / "sub") == 4.5
+    assert pf.cached_tau("k2", compute(8.0), path=blocker / "sub") == 4.5  # memory hit
+    # At most CACHE_MAX_FILES entries: the oldest go.
+    monkeypatch.setattr(pf, "CACHE_MAX_FILES", 2)
+    for k in range(4):
+        pf.cached_tau(f"many {k}", compute(float(k)))
+    assert len(list((tmp_path / "c" / "pf_llr_tau").glob("*.json"))) == 2
+    # The key names the code version: a change of the filters' source is a new key.
+    key = pf.calibration_key(np.array([[2e7, 0, 0], [0, 2e7, 0]]), np.array([6.4e6, 0, 0]),
+                             [0, 0], Gaussian(3.0), pf.ProcessModel(), n_particles=10)
+    assert key.endswith(f"code={pf.calibration_code_version()}")
 
 
 def test_noise_models_give_the_likelihood():
@@ -420,3 +526,202 @@ def test_chunked_proposal_equals_one_batch(monkeypatch):
     np.testing.assert_allclose(
         whole[2], pf.log_likelihood(whole[0], sv, pr, masks, sys_idx, noise, model),
         rtol=0, atol=one_um)
+
+
+# -- the fast kernel against the reference (ParticleBank(kernel=...)) ----------------------
+
+def _bank_case(case: str):
+    """A bank of 7 filters (seed002, 6 satellites) for the agreement tests: the process
+    model, noise model, system index, masks and start cloud of each case."""
+    from raimcore.measure.noise import GaussianMixture, scaled
+
+    d, truth = simulate(load_scenario("seed002", duration_s=12))
+    masks = np.vstack([np.ones(6, bool), ~np.eye(6, dtype=bool)])
+    sys_idx, noise, n_clk = d.sys_idx, d.noise, 1
+    model = pf.ProcessModel("static", 1, q_drift_mps2=0.2)
+    if case == "two systems, gaussian":
+        sys_idx, n_clk, noise = np.array([0, 0, 0, 1, 0, 1]), 2, Gaussian(3.0)
+        model = pf.ProcessModel("static", 2, q_drift_mps2=0.2)
+    elif case == "cv, mixture, a satellite unused":
+        noise, model = GaussianMixture(3.0), pf.ProcessModel("cv", 1, q_drift_mps2=0.2)
+        masks = masks & (np.arange(6) != 4)
+    elif case == "no drift, scaled noise":
+        noise, model = scaled(StudentT(3.0), np.linspace(0.8, 2.0, 6)), pf.ProcessModel()
+    rng = np.random.default_rng(11)
+    fix = pf.robust_fix(d.pos_sv_ecef_m[0], d.pr_m[:1], d.used[0], d.sys_idx, 1, d.noise)
+    x = np.zeros((2, 7, 300, model.dim))
+    x[..., :3] = truth.pos_rx_ecef_m[0] + rng.normal(0, 8.0, x.shape[:-1] + (3,))
+    x[..., model.clocks] = fix.clock_m[0, 0] + rng.normal(0, 8.0, x.shape[:-1] + (n_clk,))
+    if model.kind == "cv":
+        x[..., 3:6] = rng.normal(0, 1.0, x.shape[:-1] + (3,))
+    if model.has_drift:
+        x[..., model.drift] = rng.normal(0, 0.5, x.shape[:-1])
+    return d, model, noise, sys_idx, masks, x
+
+
+@pytest.mark.parametrize("case", ["one system, student-t", "two systems, gaussian",
+                                  "cv, mixture, a satellite unused", "no drift, scaled noise"])
+def test_fast_bank_step_agrees_with_the_reference(case):
+    """Agreement: 10 steps of the fast kernel and of the reference from the same cloud and
+    seed (two realisations x 7 filters x 300 particles, a 5 s gap and a clock restart on
+    the way) give the same particles, weights, predictive likelihoods, N_eff, estimates
+    and resampling decisions: the same random numbers in the same order, the same
+    formulas; the differences are rounding (the squared ranges are summed in another
+    order: nanometres)."""
+    d, model, noise, sys_idx, masks, x = _bank_case(case)
+    banks = {k: pf.ParticleBank(x, model, drift_var=0.3 if model.has_drift else 0.0,
+                                kernel=k) for k in pf.KERNELS}
+    rngs = {k: np.random.default_rng(5) for k in pf.KERNELS}
+    for k in range(1, 11):
+        dt = 5.0 if k == 4 else 1.0
+        reset = pf.CLOCK_RESET_SD_M**2 if k == 7 else 0.0
+        out = {name: bank.step(dt, d.pos_sv_ecef_m[k][None, None], d.pr_m[k][None, None],
+                               masks[None], sys_idx, noise, rngs[name], q_scale=2.0,
+                               reset_var=reset)
+               for name, bank in banks.items()}
+        fast, ref = out["fast"], out["reference"]
+        np.testing.assert_array_equal(fast.resampled, ref.resampled)
+        np.testing.assert_allclose(fast.log_pred, ref.log_pred, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(fast.n_eff, ref.n_eff, rtol=1e-6)
+        np.testing.assert_allclose(fast.estimate, ref.estimate, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(banks["fast"].particles, banks["reference"].particles,
+                                   rtol=0, atol=1e-6)
+        np.testing.assert_allclose(banks["fast"].log_w, banks["reference"].log_w, rtol=0,
+                                   atol=1e-6)
+        np.testing.assert_allclose(banks["fast"].drift_var, banks["reference"].drift_var,
+                                   rtol=1e-12)
+    assert np.any([ref.resampled])  # the resampling path was exercised
+    assert np.ptp(banks["fast"].particles[..., 0]) > 1.0  # and the clouds did move
+
+
+@pytest.mark.parametrize("budget", [700, 100, 1])
+def test_fast_kernel_blocks_change_nothing(budget, monkeypatch):
+    """Agreement: the fast kernel's per-particle work done in blocks of filters (700
+    pairs: two filters), of particles within a filter (100: 16 particles) or one particle
+    at a time gives the one-block result."""
+    d, model, noise, sys_idx, masks, x = _bank_case("two systems, gaussian")
+
+    def two_steps():
+        bank = pf.ParticleBank(x[:, :, :50], model, drift_var=0.3)
+        rng = np.random.default_rng(2)
+        out = [bank.step(1.0, d.pos_sv_ecef_m[k], d.pr_m[k], masks, sys_idx, noise, rng)
+               for k in (1, 2)]
+        return bank, out
+
+    whole, res_whole = two_steps()
+    monkeypatch.setattr(pf, "_FAST_CHUNK_ELEMENTS", budget)
+    blocks, res_blocks = two_steps()
+    # Rounding only: a one-particle block sums its likelihood by another BLAS path.
+    tiny_neper = 1e-7
+    np.testing.assert_allclose(blocks.particles, whole.particles, rtol=0, atol=ONE_NM)
+    np.testing.assert_allclose(blocks.log_w, whole.log_w, rtol=0, atol=tiny_neper)
+    for a, b in zip(res_blocks, res_whole, strict=True):
+        np.testing.assert_allclose(a.log_pred, b.log_pred, rtol=0, atol=tiny_neper)
+
+
+def test_bank_step_leaves_the_start_cloud_alone():
+    """The fast kernel updates the bank's own copy in place, never the caller's array."""
+    d, model, noise, sys_idx, masks, x = _bank_case("one system, student-t")
+    before = x.copy()
+    bank = pf.ParticleBank(x, model)
+    bank.step(1.0, d.pos_sv_ecef_m[1], d.pr_m[1], masks, sys_idx, noise,
+              np.random.default_rng(0))
+    np.testing.assert_array_equal(x, before)
+    assert not np.array_equal(bank.particles, before)
+
+
+def test_run_llr_bank_kernels_agree():
+    """Agreement over a whole run (seed002 with its fault, 60 s, N = 100): the windowed
+    LLRs, beta, argmax and estimates of the fast kernel are the reference's."""
+    d, _ = simulate(load_scenario("seed002", duration_s=100, t_start_s=60.0))
+    args = (d.pos_sv_ecef_m, d.pr_m[None], d.used, d.t_s, d.sys_idx, 1, d.noise,
+            pf_llr.process_model(pf_llr.SPEC.resolve_options({}), 1))
+    cfg = dict(n_particles=100, window=10, burn_in=5)
+    runs = {k: pf.run_llr_bank(*args, **cfg, rng=np.random.default_rng(3), kernel=k)
+            for k in pf.KERNELS}
+    fast, ref = runs["fast"], runs["reference"]
+    np.testing.assert_array_equal(fast.argmax, ref.argmax)
+    np.testing.assert_allclose(fast.cum_llr, ref.cum_llr, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(fast.beta, ref.beta, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(fast.estimate, ref.estimate, rtol=0, atol=1e-5)
+    assert np.nanmax(fast.beta) > 20.0  # the 50 m step on G19 was seen
+
+
+@pytest.mark.parametrize("path", ["network", "sort"])
+@pytest.mark.parametrize("n_sat", [1, 2, 3, 5, 6, 7, 9, 16, 24, 25, 40])
+def test_selection_network_median_is_the_sorted_median(n_sat, path, monkeypatch):
+    """The fast kernel's median (a pruned Batcher network; a sort for few values or above
+    _NETWORK_MAX satellites) equals the reference's sort-based median exactly, for any
+    mask, including a filter with no satellite of a system and rows with different
+    counts."""
+    monkeypatch.setattr(pf, "_NETWORK_MIN_VALUES", 0 if path == "network" else 10**9)
+    rng = np.random.default_rng(n_sat)
+    resid = rng.standard_t(3, (5, 40, n_sat)) * 10.0
+    mask = rng.random((5, n_sat)) < 0.7
+    mask[0] = True
+    mask[1] = False
+    sys_idx = rng.integers(0, 2, n_sat)
+    want = pf._system_median(resid, mask, sys_idx, 2)
+    got = pf._masked_median(np.ascontiguousarray(np.swapaxes(resid, -1, -2)), mask, sys_idx,
+                            2)
+    np.testing.assert_array_equal(np.swapaxes(got, -1, -2), want)
+    for s in range(2):  # row 0 sees every satellite: numpy's median
+        cols = sys_idx == s
+        np.testing.assert_array_equal(
+            got[0, s], np.median(resid[0][:, cols], axis=-1) if cols.any() else 0.0)
+    assert np.all(got[1] == 0.0)  # row 1 sees none
+
+
+def test_doctests():
+    import doctest
+
+    assert doctest.testmod(pf).failed == 0
+
+
+def test_median_network_is_a_selection_network():
+    """0-1 principle (Knuth TAOCP 5.3.4): a comparator network puts the right values on
+    its outputs for every input iff it does so for every 0-1 input; checked exhaustively
+    up to 12 wires for the median outputs the kernel asks for."""
+    for n in range(1, 13):
+        outs = tuple(sorted({(k - 1) // 2 for k in (n, n - 1) if k > 0}
+                            | {k // 2 for k in (n, n - 1) if k > 0}))
+        net = pf.median_network(n, outs)
+        bits = (np.arange(2**n)[:, None] >> np.arange(n)) & 1
+        v = bits.copy()
+        for i, j in net:
+            lo, hi = np.minimum(v[:, i], v[:, j]), np.maximum(v[:, i], v[:, j])
+            v[:, i], v[:, j] = lo, hi
+        want = np.sort(bits, axis=1)
+        np.testing.assert_array_equal(v[:, list(outs)], want[:, list(outs)])
+
+
+def test_counting_resampler_equals_systematic_resampling():
+    """The fast kernel's resampler counts each particle's copies (ceil(N c - u)) instead of
+    searching the cumulative weights: the same indices from the same uniform draw."""
+    rng = np.random.default_rng(12)
+    w = rng.dirichlet(np.full(50, 0.3), size=400)
+    w[0] = 0.0
+    w[0, 7] = 1.0
+    want = pf.systematic_resample(w, np.random.default_rng(13))
+    got = pf._resample_fast(w, np.random.default_rng(13)).reshape(w.shape)
+    np.testing.assert_array_equal(got - 50 * np.arange(400)[:, None], want)
+
+
+def test_clock_jump_median_matches_nanmedian():
+    """clock_jump's masked median (a sort with +inf) is numpy's nanmedian of the masked
+    residuals, NaN residuals ignored, a system without satellites 0."""
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        r_n, s_n = rng.integers(1, 5), rng.integers(1, 9)
+        resid = rng.normal(0, 3000.0, (r_n, s_n))
+        resid[rng.random((r_n, s_n)) < 0.1] = np.nan
+        mask = rng.random((r_n, s_n)) < 0.7
+        sys_idx = rng.integers(0, 3, s_n)
+        got = pf.clock_jump(resid, mask, sys_idx, 3, 1000.0)
+        for s in range(3):
+            v = np.where(mask & (sys_idx == s), resid, np.nan)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a row with none: NaN
+                med = np.nan_to_num(np.nanmedian(v, axis=-1))
+            want = np.where(np.abs(med) > 1000.0, med, 0.0)
+            np.testing.assert_array_equal(got[:, s], want)

@@ -190,14 +190,19 @@ def get(name: str) -> AlgorithmSpec:
         why = failed()
         extra = (f" ({name!r} failed to load: {why[name]})" if name in why else
                  did_you_mean(str(name), _REGISTRY))
-        raise SchemaError(f"algorithm must be one of {', '.join(_REGISTRY)}; got "
+        raise SchemaError(f"algorithm must be one of {', '.join(names())}; got "
                           f"{name!r}{extra}")
     return _REGISTRY[name]
 
 
 def names() -> list[str]:
-    """Names of all registered algorithms, in registration order."""
-    from . import _load_all
+    """Names of all registered algorithms: the built-in ones in the order of
+    ``raimcore.algorithms._MODULES`` (whichever module imported them first), then any
+    other in registration order."""
+    from . import _MODULES, _load_all
 
     _load_all()
-    return list(_REGISTRY)
+    rank = {f"{__package__}.{m}": k for k, m in enumerate(_MODULES)}
+    key = {n: (rank.get(getattr(s.run, "__module__", ""), len(rank)), i)
+           for i, (n, s) in enumerate(_REGISTRY.items())}
+    return sorted(_REGISTRY, key=key.__getitem__)

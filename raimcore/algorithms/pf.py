@@ -57,6 +57,15 @@ leave out the clock's own share (:func:`clock_occam`).
 Measurement model: ``rho_i = ||r - s_i|| + c dt_sys(i) + v_i`` with ``v_i`` from the
 scenario's noise model (:mod:`raimcore.measure.noise`): the filter's likelihood is its ``logpdf``.
 
+Kernels (:data:`KERNELS`): a bank step with the clock proposal is computed by the
+``"reference"`` kernel (the plain numpy code of :func:`propose`) or by the ``"fast"`` one
+(the default), which draws the same random numbers in the same order and applies the same
+formulas in fewer, larger array passes: the (S, N) arrays satellite-major, the median by a
+selection network (:func:`median_network`), one system's clock algebra in closed form,
+resampling by counting copies, the cloud updated in place in cache-sized blocks. The two
+agree to rounding (``tests/test_pf.py``); ``tests/benchmarks/bench_pf.py`` times them.
+Calibrations are cached in memory and on disk (:func:`cached_samples`, :func:`cached_tau`).
+
 References
 ----------
 .. [1] R. G. Brown, P. Y. C. Hwang, *Introduction to Random Signals and Applied Kalman
@@ -74,23 +83,26 @@ References
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import special
 from scipy.special import logsumexp
 
 from .._validate import check_choice, check_positive
 from ..constants import C_MPS
 from ..geometry import ecef_to_geodetic, enu_rotation
 from ..measure import MS_M
-from ..measure.noise import scaled
+from ..measure.noise import Gaussian, Scaled, StudentT, scaled
 
 __all__ = ["PROCESS_MODELS", "ProcessModel", "ParticleBank", "predict", "log_likelihood",
            "normalise_log_weights", "effective_sample_size", "systematic_resample",
            "weighted_mean", "initial_cloud", "clock_jump", "initial_drift", "drift_step_var",
-           "propose", "PROPOSALS", "PROPOSAL_DEFENSIVE", "Q_CLK_TCXO_MPS", "Q_DRIFT_TCXO_MPS2",
+           "propose", "PROPOSALS", "KERNELS", "PROPOSAL_DEFENSIVE", "Q_CLK_TCXO_MPS",
+           "Q_DRIFT_TCXO_MPS2", "median_network", "DEFAULT_KERNEL",
            "CLOCK_JUMP_M", "MS_M", "CLOCK_RESET_SD_M", "CLOCK_RESET_DRIFT_SD_MPS",
            "reset_epochs", "clock_occam"]
 
@@ -98,8 +110,18 @@ PROCESS_MODELS = ("static", "cv")
 #: Proposals of :class:`ParticleBank`: ``"clock"`` (:func:`propose`, the default) or
 #: ``"prior"`` (the state equation, :func:`predict`: the bootstrap filter).
 PROPOSALS = ("clock", "prior")
+#: Kernels of a :class:`ParticleBank` step: ``"fast"`` (the default) or ``"reference"``
+#: (the plain numpy code the fast one is checked against; the same random numbers).
+KERNELS = ("fast", "reference")
+#: The kernel of a bank made without naming one (benchmarks set it to time the reference
+#: through the whole pipeline).
+DEFAULT_KERNEL = "fast"
+#: Floor of a log weight (the weights' floor 1e-300, as the reference kernel's).
+_LOG_W_FLOOR = math.log(1e-300)
 #: Particle-satellite pairs per likelihood chunk (about 0.5 MB per float64 temporary).
 _CHUNK_ELEMENTS = 65536
+#: The same for the fast kernel (ParticleBank(kernel="fast")), tuned on bench_pf.py.
+_FAST_CHUNK_ELEMENTS = 32768
 #: Constant-velocity start-up: the velocity process noise starts at VEL_BOOST x the start
 #: velocity's standard deviation per sqrt(s) and decays like the position's (see
 #: run_llr_bank); tuned on seed000-step with model = "cv" (sigma 3 and 33 m).
@@ -365,29 +387,10 @@ def _propose(particles, dt_s, model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx, no
     sv = np.broadcast_to(sv, batch + (s_n, 3))
     pr = np.broadcast_to(np.asarray(pr_m, dtype=float), batch + (s_n,))
     mask = np.broadcast_to(np.asarray(mask, dtype=bool), batch + (s_n,))
-    # Per filter: the prior of the offset noise e ~ N(0, S), S = a I + beta 1 1^T, and the
-    # precision of each system's median residual (0 where the filter sees none of it).
-    s_cov = a * np.eye(q) + beta[..., None, None] * np.ones((q, q))
-    w = np.where(mask, _noise_weight(noise), 0.0)
-    lam = w @ (sys_idx[:, None] == np.arange(q)).astype(float) / (math.pi / 2.0)
-    informative = (lam > 0).any(-1) & (a > 0)
-    if a > 0:
-        chol_s = np.linalg.cholesky(s_cov)
-        # Gaussian posterior of e given the medians m ~ N(e, diag(lam)^-1), in a form that
-        # allows lam = 0: G = diag(sqrt(lam)), M = I + G S G, mu = S G M^-1 G m,
-        # P = S - S G M^-1 G S.
-        g = np.sqrt(lam)
-        sg = s_cov * g[..., None, :]
-        m_inv = np.linalg.inv(np.eye(q) + g[..., :, None] * sg)
-        gain = sg @ m_inv * g[..., None, :]
-        p_cov = s_cov - sg @ m_inv @ np.swapaxes(sg, -1, -2)
-        chol_p = np.linalg.cholesky(0.5 * (p_cov + np.swapaxes(p_cov, -1, -2)))
-        s_inv, p_inv = np.linalg.inv(s_cov), np.linalg.inv(p_cov)
-        half_logdet_s = np.log(np.diagonal(chol_s, axis1=-2, axis2=-1)).sum(-1)
-        half_logdet_p = np.log(np.diagonal(chol_p, axis1=-2, axis2=-1)).sum(-1)
-    else:  # no per-system noise: e is the common (drift) part, from the prior
-        chol_s = np.zeros(batch + (q, q))
-        chol_s[..., :, 0] = np.sqrt(beta)[..., None]
+    t = _clock_terms(a, beta, mask, sys_idx, q, noise)
+    informative, chol_s = t.informative, t.chol_s
+    gain, chol_p, s_inv, p_inv = t.gain, t.chol_p, t.s_inv, t.p_inv
+    half_logdet_s, half_logdet_p = t.half_logdet_s, t.half_logdet_p
     rows = int(np.prod(batch, dtype=int))
     flat = lambda arr, k: arr.reshape((rows,) + arr.shape[arr.ndim - k:])  # noqa: E731
     xf, svf, prf, mf = flat(x, 2), flat(sv, 2), flat(pr, 1), flat(mask, 1)
@@ -425,6 +428,412 @@ def _propose(particles, dt_s, model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx, no
     if model.has_drift:
         _condition_drift(x, e, model, drift_var, dt, q_scale, reset_var)
     return x, log_ratio.reshape(batch + (n,)), ll.reshape(batch + (n,))
+
+
+@dataclass(frozen=True)
+class _ClockTerms:
+    """Per filter, the Gaussians of the clock proposal (:func:`_propose`), batch shape
+    ``(...)``: ``informative`` (...) bool; ``chol_s``, ``gain``, ``chol_p``, ``s_inv``,
+    ``p_inv`` (..., q, q); ``half_logdet_s``, ``half_logdet_p`` (...) (None where ``a`` is
+    0: nothing is informative then)."""
+
+    informative: np.ndarray
+    chol_s: np.ndarray
+    gain: np.ndarray | None = None
+    chol_p: np.ndarray | None = None
+    s_inv: np.ndarray | None = None
+    p_inv: np.ndarray | None = None
+    half_logdet_s: np.ndarray | None = None
+    half_logdet_p: np.ndarray | None = None
+
+
+def _clock_terms(a: float, beta, mask, sys_idx, q: int, noise,
+                 closed_form: bool = False) -> _ClockTerms:
+    """The per-filter part of the clock proposal (:func:`_propose`): the prior of the offset
+    noise ``e ~ N(0, S)``, ``S = a I + beta 1 1^T`` (``beta`` (...)), the precision ``lam``
+    of each system's median residual (0 where the filter sees none of it, ``mask`` (..., S))
+    and the Gaussian posterior ``N(mu = gain m, P)`` of ``e`` given the medians ``m``;
+    ``closed_form``: one system's scalars without the matrix functions (the fast kernel)."""
+    batch = np.shape(beta)
+    w = np.where(mask, _noise_weight(noise), 0.0)
+    lam = w @ (sys_idx[:, None] == np.arange(q)).astype(float) / (math.pi / 2.0)
+    informative = (lam > 0).any(-1) & (a > 0)
+    if not a > 0:  # no per-system noise: e is the common (drift) part, from the prior
+        chol_s = np.zeros(batch + (q, q))
+        chol_s[..., :, 0] = np.sqrt(beta)[..., None]
+        return _ClockTerms(informative, chol_s)
+    if q == 1 and closed_form:
+        # The same in closed form (scalars per filter): P = S / (1 + lam S).
+        s1 = a + np.asarray(beta, dtype=float)
+        lam1 = lam[..., 0]
+        den = 1.0 + lam1 * s1
+        p1 = s1 / den
+        col = lambda v: v[..., None, None]  # noqa: E731
+        return _ClockTerms(informative, col(np.sqrt(s1)), col(s1 * lam1 / den),
+                           col(np.sqrt(p1)), col(1.0 / s1), col(1.0 / p1),
+                           0.5 * np.log(s1), 0.5 * np.log(p1))
+    s_cov = a * np.eye(q) + np.asarray(beta)[..., None, None] * np.ones((q, q))
+    chol_s = np.linalg.cholesky(s_cov)
+    # Gaussian posterior of e given the medians m ~ N(e, diag(lam)^-1), in a form that
+    # allows lam = 0: G = diag(sqrt(lam)), M = I + G S G, mu = S G M^-1 G m,
+    # P = S - S G M^-1 G S.
+    g = np.sqrt(lam)
+    sg = s_cov * g[..., None, :]
+    m_inv = np.linalg.inv(np.eye(q) + g[..., :, None] * sg)
+    gain = sg @ m_inv * g[..., None, :]
+    p_cov = s_cov - sg @ m_inv @ np.swapaxes(sg, -1, -2)
+    chol_p = np.linalg.cholesky(0.5 * (p_cov + np.swapaxes(p_cov, -1, -2)))
+    s_inv, p_inv = np.linalg.inv(s_cov), np.linalg.inv(p_cov)
+    half_logdet_s = np.log(np.diagonal(chol_s, axis1=-2, axis2=-1)).sum(-1)
+    half_logdet_p = np.log(np.diagonal(chol_p, axis1=-2, axis2=-1)).sum(-1)
+    return _ClockTerms(informative, chol_s, gain, chol_p, s_inv, p_inv, half_logdet_s,
+                       half_logdet_p)
+
+
+
+# -- the fast kernel of a bank step (ParticleBank(kernel="fast")) ----------------------------
+# The same random numbers in the same order and the same formulas as the reference
+# (_propose, normalise_log_weights, ...), with fewer and larger array operations: the
+# per-filter algebra in closed form for one system, the median by a selection network
+# instead of a sort of every particle's residuals, matrix products instead of einsum,
+# temporaries reused in place. Results agree with the reference to rounding
+# (tests/test_pf.py, the agreement tests).
+
+#: Largest number of a system's satellites whose median uses a selection network (above
+#: it: a sort, as the reference).
+_NETWORK_MAX = 24
+#: Below this many values a sort is quicker than a network's per-comparator overhead.
+_NETWORK_MIN_VALUES = 8192
+
+
+def _batcher_pairs(lo: int, hi: int):
+    """Comparators of Batcher's odd-even merge sort of wires ``lo..hi`` (inclusive, a
+    power of two of them)."""
+    if hi - lo >= 1:
+        mid = lo + (hi - lo) // 2
+        yield from _batcher_pairs(lo, mid)
+        yield from _batcher_pairs(mid + 1, hi)
+        yield from _batcher_merge(lo, hi, 1)
+
+
+def _batcher_merge(lo: int, hi: int, r: int):
+    step = 2 * r
+    if step < hi - lo:
+        yield from _batcher_merge(lo, hi, step)
+        yield from _batcher_merge(lo + r, hi, step)
+        yield from ((i, i + r) for i in range(lo + r, hi - r, step))
+    else:
+        yield (lo, lo + r)
+
+
+@functools.lru_cache(maxsize=256)
+def median_network(n_wires: int, outputs: tuple[int, ...]) -> tuple[tuple[int, int], ...]:
+    """A selection network: the comparators ``(i, j)`` (``i < j``; min to ``i``, max to
+    ``j``) that put the values ranked ``outputs`` (0-based) of ``n_wires`` values on those
+    wires.
+
+    Batcher's odd-even merge sort on the next power of two (K. E. Batcher, "Sorting networks
+    and their applications", AFIPS 1968), the wires from ``n_wires`` on held at +inf (their
+    comparators do nothing and are dropped), pruned backwards to the comparators that
+    decide ``outputs``. Masked values set to +inf sort last, so the median of the first
+    ``k`` of them is read on wires ``(k - 1) // 2`` and ``k // 2``.
+
+    >>> median_network(3, (1,))  # Batcher's 4-wire sort without the wire 3
+    ((0, 1), (0, 2), (1, 2))
+    """
+    size = 1 << max(n_wires - 1, 0).bit_length()
+    net = [(i, j) for i, j in _batcher_pairs(0, size - 1) if j < n_wires]
+    need, keep = set(outputs), []
+    for i, j in reversed(net):
+        if i in need or j in need:
+            keep.append((i, j))
+            need |= {i, j}
+    return tuple(reversed(keep))
+
+
+def _masked_median(resid, mask, sys_idx, n_sys: int):
+    """:func:`_system_median` in the fast kernel's layout: ``resid`` (R, S, N) (satellite
+    before particle), ``mask`` (R, S) -> (R, n_sys, N). The same values (the same order
+    statistics, averaged the same way), by a selection network over the satellites
+    (:func:`median_network`): each comparator is one pass over (R, N) values; by a sort
+    along the satellites for few values (below :data:`_NETWORK_MIN_VALUES`) or many
+    satellites (above :data:`_NETWORK_MAX`)."""
+    r_n, _, n = resid.shape
+    out = np.zeros((r_n, n_sys, n))
+    for s in range(n_sys):
+        cols = np.flatnonzero(sys_idx == s)
+        m = mask[:, cols]
+        cnt = m.sum(-1)
+        if cols.size == 0 or not cnt.any():
+            continue
+        buf = resid[:, cols, :]  # a copy (fancy index)
+        buf[~m] = np.inf
+        lo, hi = np.maximum((cnt - 1) // 2, 0), cnt // 2
+        uniform = bool((lo == lo[0]).all() and (hi == hi[0]).all())
+        if cols.size > _NETWORK_MAX or buf.size <= _NETWORK_MIN_VALUES:
+            buf.sort(axis=1)
+            if uniform:
+                med = buf[:, lo[0]] + buf[:, hi[0]]
+            else:
+                rows = np.arange(r_n)
+                med = buf[rows, lo] + buf[rows, hi]
+        else:
+            outputs = tuple(sorted(set(lo.tolist()) | set(hi.tolist())))
+            wires = list(np.moveaxis(buf, 1, 0))
+            for i, j in median_network(cols.size, outputs):
+                a, b = wires[i], wires[j]
+                wires[i] = np.minimum(a, b)
+                np.maximum(a, b, out=b)
+            if uniform:
+                med = wires[lo[0]] + wires[hi[0]]
+            else:
+                med = (np.stack([wires[k][r] for r, k in enumerate(lo.tolist())])
+                       + np.stack([wires[k][r] for r, k in enumerate(hi.tolist())]))
+        med *= 0.5
+        out[:, s] = np.where(cnt[:, None] > 0, med, 0.0)
+    return out
+
+
+def _residuals_fast(x, sv, pr, mask, sys_idx, model: ProcessModel):
+    """:func:`_residuals` in the fast kernel's layout: ``x`` (R, N, D), ``sv`` (R, S, 3),
+    ``pr``, ``mask`` (R, S) -> (R, S, N), satellite before particle, so that every
+    array operation runs along the particles. ``|s - r|^2 = |r|^2 - 2 s.r + |s|^2`` as one
+    matrix product in ECEF (the rounding of the squared range, 0.1 m^2 at 2e7 m, is below
+    1e-8 m of range, as in the reference); where ``mask`` is False the values are finite
+    and never used (the likelihood weighs them by 0, the median skips them)."""
+    d = x.shape[-1]
+    m = np.zeros(sv.shape[:-1] + (d,))
+    m[..., :3] = -2.0 * sv
+    r2 = m @ np.swapaxes(x, -1, -2)  # (R, S, N)
+    xx = np.square(x)
+    r2 += (xx @ _unit_rows(d, 3))[:, None, :]
+    r2 += np.einsum("rsk,rsk->rs", sv, sv)[:, :, None]
+    np.sqrt(r2, out=r2)
+    np.subtract(np.where(mask & np.isfinite(pr), pr, 0.0)[:, :, None], r2, out=r2)
+    if model.n_clk == 1:
+        r2 -= x[:, None, :, model.clk0]
+    else:
+        r2 -= np.moveaxis(x[..., model.clk0 + sys_idx], -1, 1)
+    return r2
+
+
+@functools.lru_cache(maxsize=16)
+def _unit_rows(d: int, k: int) -> np.ndarray:
+    """(d,) ones on the first ``k`` entries, zeros after."""
+    out = np.zeros(d)
+    out[:k] = 1.0
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _motion_pattern(size: int, d: int, k: int) -> np.ndarray:
+    """(size * d,) flat pattern: 1 on the first ``k`` components of each of ``size``
+    states, 0 on the rest (a contiguous multiplier in place of a strided slice)."""
+    out = np.tile(_unit_rows(d, k), size)
+    out.flags.writeable = False
+    return out
+
+
+def _move_fast(x, noise, dt_s: float, model: ProcessModel, q_scale: float,
+               q_scale_vel: float):
+    """:func:`_move` on a C-contiguous ``x`` (..., N, D): for the static model the position
+    noise is added as one contiguous pass over the states (the slice ``[..., :3]`` makes
+    numpy loop over 3 values at a time), the same values; the constant-velocity model uses
+    :func:`_move`. ``noise`` is overwritten."""
+    if model.kind != "static" or not (x.flags.c_contiguous and noise.flags.c_contiguous):
+        _move(x, noise, dt_s, model, q_scale, q_scale_vel)
+        return
+    flat = noise.reshape(-1)
+    flat *= _motion_pattern(flat.size // x.shape[-1], x.shape[-1], 3)
+    flat *= model.q_pos_mps * (q_scale * math.sqrt(max(dt_s, 0.0)))  # as _move's
+    x.reshape(-1)[...] += flat
+
+
+def _log_likelihood_rows(noise, resid, mask_f):
+    """``sum_s mask_s ln p(resid_s)`` (R, N) for ``resid`` (R, S, N) (overwritten) and
+    ``mask_f`` (R, 1, S) float: the noise model's ``logpdf``, in place for a Gaussian and a
+    Student-t model (the same formula, its constant added once per filter), else the
+    model's own ``logpdf``."""
+    count = mask_f[:, 0, :].sum(-1)[:, None]
+    if type(noise) is StudentT:
+        nu, s = noise.nu, noise.sigma_m
+        c = (special.gammaln((nu + 1) / 2) - special.gammaln(nu / 2)
+             - 0.5 * math.log(nu * math.pi) - math.log(s))  # noise.StudentT.logpdf
+        resid *= 1.0 / (s * math.sqrt(nu))
+        np.square(resid, out=resid)
+        np.log1p(resid, out=resid)
+        out = (mask_f @ resid)[:, 0]
+        out *= -0.5 * (nu + 1)
+        out += c * count
+        return out
+    if type(noise) is Gaussian:
+        s = noise.sigma_m
+        resid *= 1.0 / s
+        np.square(resid, out=resid)
+        out = (mask_f @ resid)[:, 0]
+        out *= -0.5
+        out -= (math.log(s) + 0.5 * math.log(2.0 * math.pi)) * count
+        return out
+    if isinstance(noise, Scaled):  # the scale is per satellite: move it to the last axis
+        return (mask_f @ np.swapaxes(noise.logpdf(np.swapaxes(resid, -1, -2)), -1, -2))[:, 0]
+    return (mask_f @ noise.logpdf(resid))[:, 0]
+
+
+def _rows_times(mat, v):
+    """``v @ mat^T`` for rows: ``mat`` (R, q, q), ``v`` (R, N, q) -> (R, N, q)
+    (``einsum("rij,rnj->rni")``)."""
+    return v @ np.swapaxes(mat, -1, -2)
+
+
+def _quad(v, mat):
+    """``v^T mat v`` for rows: ``v`` (R, N, q), ``mat`` (R, q, q) -> (R, N)."""
+    return np.einsum("rni,rni->rn", v @ np.swapaxes(mat, -1, -2), v)
+
+
+def _blocks(rows: int, n: int, s_n: int):
+    """Blocks ``(row slice, particle slice)`` of a bank's per-particle work of about
+    :data:`_FAST_CHUNK_ELEMENTS` particle-satellite pairs: whole filters while they fit,
+    else one filter at a time in runs of particles (every particle is independent there)."""
+    per_row = max(n * s_n, 1)
+    if per_row <= _FAST_CHUNK_ELEMENTS:
+        step = _FAST_CHUNK_ELEMENTS // per_row
+        for i in range(0, rows, step):
+            yield slice(i, i + step), slice(None)
+        return
+    run = max(1, _FAST_CHUNK_ELEMENTS // max(s_n, 1))
+    for i in range(rows):
+        for j in range(0, n, run):
+            yield slice(i, i + 1), slice(j, j + run)
+
+
+def _propose_fast(x, dt_s, model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx, noise,
+                  q_scale, q_scale_vel, drift_var, reset_var: float = 0.0):
+    """:func:`_propose` on C-contiguous particles ``x`` (..., N, D), updated in place: the
+    same draws and formulas, the (S, N) arrays satellite-major, one system's clock in
+    scalars, every per-particle step (move, residuals, proposal, likelihood, drift) done
+    block by block (:func:`_blocks`); returns ``(log_ratio, ll)`` (..., N)."""
+    batch, n, q, d = x.shape[:-2], x.shape[-2], model.n_clk, x.shape[-1]
+    dt = max(float(dt_s), 0.0)
+    sys_idx = np.asarray(sys_idx, dtype=int)
+    noise_std = rng.standard_normal(x.shape)
+    z = rng.standard_normal(batch + (n, q))
+    pick = rng.random(batch + (n,))
+    clk = model.clocks
+    a = (model.q_clk_mps * q_scale)**2 * dt + reset_var
+    beta = np.zeros(batch)
+    rows = int(np.prod(batch, dtype=int))
+    xf, noise_f = x.reshape((rows, n, d)), noise_std.reshape((rows, n, d))
+    if model.has_drift:
+        beta = np.broadcast_to(_drift_terms(model, drift_var, dt, q_scale)[1], batch)
+        # _condition_drift's gain per filter, applied block by block below.
+        a_d, beta_d, c_d = _drift_terms(model, np.broadcast_to(drift_var, batch), dt, q_scale,
+                                        reset_var)
+        den = a_d + q * beta_d
+        drift_gain = np.where(den > 0, c_d / np.where(den > 0, den, 1.0), 0.0).reshape(rows)
+    sv = np.asarray(pos_sv_ecef_m, dtype=float)
+    s_n = sv.shape[-2]
+    def flat(arr, k):  # (rows, *last k axes of arr), broadcast over the batch
+        tail = arr.shape[arr.ndim - k:]
+        if arr.shape[:arr.ndim - k] != batch:
+            arr = np.broadcast_to(arr, batch + tail)
+        return arr.reshape((rows,) + tail)
+
+    mask_b = np.broadcast_to(np.asarray(mask, dtype=bool), batch + (s_n,))
+    t = _clock_terms(a, beta, mask_b, sys_idx, q, noise, closed_form=True)
+    svf, prf = flat(sv, 2), flat(np.asarray(pr_m, dtype=float), 1)
+    mf = mask_b.reshape(rows, s_n)
+    zf, pick_f, inff, cs = (z.reshape(rows, n, q), pick.reshape(rows, n),
+                            flat(t.informative, 0), flat(t.chol_s, 2))
+    any_inf = bool(inff.any())
+    if any_inf:
+        gain, chol_p = flat(t.gain, 2), flat(t.chol_p, 2)
+        s_inv, p_inv = flat(t.s_inv, 2), flat(t.p_inv, 2)
+        hls, hlp = flat(t.half_logdet_s, 0), flat(t.half_logdet_p, 0)
+    mwf = mf.astype(float)[:, None, :]
+    log_ratio = np.zeros((rows, n))
+    ll = np.empty((rows, n))
+    alpha = PROPOSAL_DEFENSIVE
+    log_a, log_1ma = math.log(alpha), math.log1p(-alpha)
+    for sl, sp in _blocks(rows, n, s_n):
+        pp = (sl, sp)  # (rows, particles) of this block: its arrays stay in cache
+        xb = xf[pp]  # a contiguous view: whole filters, or a run of one filter's particles
+        _move_fast(xb, noise_f[pp], dt_s, model, q_scale, q_scale_vel)
+        if model.has_drift:  # the prior mean b + d dt
+            if q == 1:
+                xb[..., model.clk0] += xb[..., model.drift] * dt
+            else:
+                xb[..., clk] += xb[..., model.drift, None] * dt
+        resid = _residuals_fast(xb, svf[sl], prf[sl], mf[sl], sys_idx, model)
+        inf = inff[sl]
+        if q == 1:  # scalars per particle: (r, N) arrays
+            zc = zf[sl, sp, 0]
+            ec = cs[sl, 0] * zc  # the state equation's draw
+            if any_inf and inf.any():
+                mu = _masked_median(resid, mf[sl], sys_idx, 1)[:, 0]
+                mu *= gain[sl, 0]
+                et = chol_p[sl, 0] * zc
+                et += mu
+                np.copyto(et, ec, where=pick_f[pp] < alpha)
+                log_s = np.square(et)
+                log_s *= -0.5 * s_inv[sl, 0]
+                log_s -= hls[sl, None]
+                mu -= et  # -d: the quadratic form does not see the sign
+                log_p = np.square(mu)
+                log_p *= -0.5 * p_inv[sl, 0]
+                log_p -= hlp[sl, None]
+                log_p += log_1ma
+                lr = log_s - np.logaddexp(log_p, log_s + log_a)
+                ec = et if inf.all() else np.where(inf[:, None], et, ec)
+                log_ratio[pp] = lr if inf.all() else np.where(inf[:, None], lr, 0.0)
+            xb[..., model.clk0] += ec
+            if model.has_drift:
+                xb[..., model.drift] += drift_gain[sl, None] * ec
+            resid -= ec[:, None, :]
+        else:
+            ec = _rows_times(cs[sl], zf[pp])
+            if any_inf and inf.any():
+                centre = np.swapaxes(_masked_median(resid, mf[sl], sys_idx, q), -1, -2)
+                mu = _rows_times(gain[sl], centre)
+                et = _rows_times(chol_p[sl], zf[pp])
+                et += mu
+                np.copyto(et, ec, where=(pick_f[pp] < alpha)[..., None])
+                log_s = _quad(et, s_inv[sl])
+                log_s *= -0.5
+                log_s -= hls[sl, None]
+                mu -= et
+                log_p = _quad(mu, p_inv[sl])
+                log_p *= -0.5
+                log_p -= hlp[sl, None]
+                log_p += log_1ma
+                lr = log_s - np.logaddexp(log_p, log_s + log_a)
+                ec = np.where(inf[:, None, None], et, ec)
+                log_ratio[pp] = np.where(inf[:, None], lr, 0.0)
+            xb[..., clk] += ec
+            if model.has_drift:
+                xb[..., model.drift] += drift_gain[sl, None] * ec.sum(-1)
+            resid -= np.moveaxis(ec, -1, 1)[:, sys_idx, :]
+        ll[pp] = _log_likelihood_rows(noise, resid, mwf[sl])
+    return log_ratio.reshape(batch + (n,)), ll.reshape(batch + (n,))
+
+
+def _resample_fast(w, rng: np.random.Generator):
+    """:func:`systematic_resample` of rows ``w`` (G, N), as flat indices into (G * N): the
+    same uniform draw, each particle's copies counted instead of searched: the points
+    ``(u + k) / N`` below a cumulative weight ``c`` number ``ceil(N c - u)``, so particle
+    ``i`` is copied ``ceil(N c_i - u) - ceil(N c_{i-1} - u)`` times (``np.repeat``: linear
+    in N, no binary search)."""
+    g, n = w.shape
+    u = rng.random((g, 1))
+    c = np.cumsum(w, axis=-1)
+    c /= c[:, -1:]
+    c[:, -1] = 1.0
+    c *= n
+    c -= u
+    np.ceil(c, out=c)
+    np.clip(c, 0.0, n, out=c)
+    c[:, 1:] -= c[:, :-1].copy()  # the copies of each particle
+    return np.repeat(np.arange(g * n), c.astype(np.intp).reshape(-1))
 
 
 def _drift_terms(model: ProcessModel, drift_var, dt: float, q_scale: float,
@@ -760,19 +1169,23 @@ def clock_jump(resid_m, mask, sys_idx, n_sys: int, threshold_m: float = CLOCK_JU
     (..., n_sys) the jump of each system's clock (m), 0 where none (or no satellite).
     """
     r = np.asarray(resid_m, dtype=float)
-    mask = np.asarray(mask, dtype=bool)
+    mask = np.asarray(mask, dtype=bool) & ~np.isnan(r)
     sys_idx = np.asarray(sys_idx, dtype=int)
     out = np.zeros(np.broadcast_shapes(r.shape, mask.shape)[:-1] + (n_sys,))
+    if not (mask & (np.abs(r) > threshold_m)).any():
+        return out  # no residual above the threshold: no median above it either
     for s in range(n_sys):
         m = mask & (sys_idx == s)
         if not m.any():
             continue
-        v = np.where(m, r, np.nan)
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # a batch row without a satellite
-            med = np.nanmedian(v, axis=-1)
-        out[..., s] = np.where(np.abs(np.nan_to_num(med)) > threshold_m, np.nan_to_num(med),
-                               0.0)
+        # The median of each row's satellites in m (nanmedian's values, without its cost):
+        # the others sorted last as +inf, the middle order statistics averaged.
+        v = np.sort(np.where(m, r, np.inf), axis=-1)
+        k = m.sum(-1, keepdims=True)
+        med = 0.5 * (np.take_along_axis(v, np.maximum((k - 1) // 2, 0), -1)
+                     + np.take_along_axis(v, k // 2, -1))[..., 0]
+        med = np.nan_to_num(np.where(k[..., 0] > 0, med, 0.0))  # none: no jump
+        out[..., s] = np.where(np.abs(med) > threshold_m, med, 0.0)
     return out
 
 
@@ -894,13 +1307,22 @@ class ParticleBank:
         measurements and the weights corrected by prior / proposal (:func:`propose`);
         ``"prior"``: drawn from the state equation (:func:`predict`, the bootstrap filter,
         which degenerates when the clock is predicted much less well than it is measured).
+    kernel : ``"fast"`` or ``"reference"`` (:data:`KERNELS`; None: :data:`DEFAULT_KERNEL`,
+        ``"fast"``): how a step with the clock proposal is computed. Both draw the same
+        random numbers in the same order and agree to rounding (the agreement tests in
+        ``tests/test_pf.py``); the fast kernel updates the cloud in place with fewer array
+        passes, the reference is the plain numpy code it is checked against.
+
+    The cloud is copied: stepping a bank never changes the array it was made from.
     """
 
     def __init__(self, particles, model: ProcessModel, n_threshold: float | None = None,
-                 drift_var=0.0, proposal: str = "clock"):
-        self.particles = np.asarray(particles, dtype=float)
+                 drift_var=0.0, proposal: str = "clock", kernel: str | None = None):
+        self.particles = np.array(particles, dtype=float, order="C", copy=True)
         self.model = model
         self.proposal = check_choice("proposal", proposal, PROPOSALS)
+        self.kernel = check_choice("kernel", DEFAULT_KERNEL if kernel is None else kernel,
+                                   KERNELS)
         n = self.particles.shape[-2]
         self.log_w = np.full(self.particles.shape[:-1], -math.log(n))
         self.n_threshold = 2.0 * n / 3.0 if n_threshold is None else float(n_threshold)
@@ -922,6 +1344,9 @@ class ParticleBank:
         their prediction (m^2, :func:`_propose`); such a step always uses the clock
         proposal (drawn from a diffuse prior, no particle would land on the measurements).
         """
+        if self.kernel == "fast" and (self.proposal == "clock" or reset_var != 0.0):
+            return self._step_fast(dt_s, pos_sv_ecef_m, pr_m, mask, sys_idx, noise, rng,
+                                   q_scale, q_scale_vel, reset_var)
         drift_var = self.drift_var
         if self.proposal == "prior" and reset_var == 0.0:
             self.particles = predict(self.particles, dt_s, self.model, rng, q_scale,
@@ -957,6 +1382,50 @@ class ParticleBank:
             self.particles = flat.reshape(self.particles.shape)
             self.log_w = log_w.reshape(self.log_w.shape)
         return StepResult(log_pred, n_eff, est, need)
+
+    def _step_fast(self, dt_s, pos_sv_ecef_m, pr_m, mask, sys_idx, noise, rng, q_scale,
+                   q_scale_vel, reset_var) -> StepResult:
+        """:meth:`step` with the fast kernel (:func:`_propose_fast`): the same random
+        numbers, the cloud updated in place, the weights normalised by one max / exp /
+        sum, the resampled filters gathered at once (:func:`systematic_resample` over the
+        flattened bank: one cumsum and one searchsorted)."""
+        x = self.particles
+        drift_var = self.drift_var
+        log_ratio, ll = _propose_fast(x, dt_s, self.model, rng, pos_sv_ecef_m, pr_m, mask,
+                                      sys_idx, noise, q_scale, q_scale_vel, drift_var,
+                                      reset_var)
+        if self.model.has_drift:
+            self.drift_var = drift_step_var(self.model, drift_var, dt_s, q_scale, reset_var)
+        # seed 002 eq. (weights), as in step: w_k = w_{k-1} p(z_k | x_k) r, normalised.
+        log_w = ll
+        log_w += self.log_w
+        log_w += log_ratio
+        top = log_w.max(-1, keepdims=True)
+        top = np.where(np.isfinite(top), top, 0.0)
+        w = log_w - top
+        np.exp(w, out=w)
+        total = w.sum(-1, keepdims=True)
+        w /= total
+        log_norm = top + np.log(total)
+        n_eff = 1.0 / np.einsum("...n,...n->...", w, w)
+        est = (w[..., None, :] @ x)[..., 0, :]
+        log_w -= log_norm
+        np.maximum(log_w, _LOG_W_FLOOR, out=log_w)
+        need = n_eff < self.n_threshold
+        if need.any():
+            n, d = x.shape[-2:]
+            flat = x.reshape(-1, n, d)
+            rows = np.flatnonzero(need.reshape(-1))
+            idx = _resample_fast(w.reshape(-1, n)[rows], rng)
+            idx += np.repeat((rows - np.arange(rows.size)) * n, n)  # rows of the bank
+            picked = np.take(flat.reshape(-1, d), idx, axis=0)
+            if rows.size == flat.shape[0]:
+                flat.reshape(-1, d)[...] = picked
+            else:
+                flat[rows] = picked.reshape(-1, n, d)
+            log_w.reshape(-1, n)[rows] = -math.log(n)
+        self.log_w = log_w
+        return StepResult(log_norm[..., 0], n_eff, est, need)
 
 
 # -- the bank of s + 1 filters and its log-likelihood ratios (seed 002 section 2) --------
@@ -1064,7 +1533,8 @@ def robust_fix(pos_sv_ecef_m, pr_m, used, sys_idx, n_sys: int, noise, n_iter: in
 def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
                  model: ProcessModel, *, n_particles: int, window: int, burn_in: int,
                  rng: np.random.Generator, scale=None, keep_cloud: int = 0,
-                 clock_reset=None, reset_drift: bool = True) -> BankRun:
+                 clock_reset=None, reset_drift: bool = True,
+                 kernel: str | None = None) -> BankRun:
     """Run the bank of s + 1 SIR filters and the windowed LLR test (spec section 3).
 
     Parameters
@@ -1088,6 +1558,7 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     reset_drift : at a restart, restart the drift too and learn it again at the next
         update (:func:`_restart_drift`, :data:`CLOCK_RESET_DRIFT_SD_MPS`); False keeps its
         estimate and variance (an oscillator running through the restart).
+    kernel : the bank's step kernel, ``"fast"`` or ``"reference"`` (:class:`ParticleBank`).
 
     Returns
     -------
@@ -1174,7 +1645,7 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     bank = ParticleBank(initial_cloud(fix.pos_ecef_m, fix.clock_m, fix.cov_enu, n_particles,
                                       model, rng, batch=(q_n,), vel_mean_mps=vel0,
                                       vel_sigma_mps=vel_sd, inflate=3.0, drift_mps=drift0),
-                        model, drift_var=drift_sd[:, None]**2)
+                        model, drift_var=drift_sd[:, None]**2, kernel=kernel)
     jumps = np.zeros((r_n, e_n, n_sys))
     jumped = np.zeros((r_n, n_sys), dtype=bool)  # a jump at the previous available epoch
     k_prev = k0
@@ -1262,7 +1733,7 @@ def _common_mode(bank: ParticleBank, dt_step: float, sv, pr, used, sys_idx, n_sy
     if model.has_drift:
         clk = clk + m[:, model.drift, None] * dt_step
     rng_m = np.linalg.norm(sv[None] - pos[:, None], axis=-1)
-    resid = np.nan_to_num(pr) - rng_m - clk[:, np.asarray(sys_idx, dtype=int)]
+    resid = np.where(np.isnan(pr), 0.0, pr) - rng_m - clk[:, np.asarray(sys_idx, dtype=int)]
     return clock_jump(resid, used[None], sys_idx, n_sys, threshold_m)
 
 
@@ -1360,7 +1831,7 @@ def calibrate_tau(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, n_sys: int, noise,
                   model: ProcessModel, *, n_particles: int, window: int, burn_in: int,
                   p_fa_window: float, n_runs: int, n_armed: int,
                   rng: np.random.Generator, dt_s: float = 1.0,
-                  scale=None) -> Calibration:
+                  scale=None, kernel: str | None = None) -> Calibration:
     """Calibrate ``tau`` by fault-free Monte Carlo runs of the same bank.
 
     The geometry is frozen (satellites ``(S, 3)`` and receiver ``(3,)`` at one epoch: the
@@ -1372,6 +1843,8 @@ def calibrate_tau(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, n_sys: int, noise,
     ``beta(k)`` of the ``n_armed`` armed epochs of every run
     (:func:`threshold_from_samples`). ``scale`` (S,), optional: per-satellite noise factor
     (elevation model), used both to draw the noise and in the filters' likelihood.
+    ``kernel``: the bank's step kernel (:class:`ParticleBank`; the same tau either way, to
+    rounding).
     """
     sv = np.asarray(pos_sv_ecef_m, dtype=float)
     s_n = sv.shape[0]
@@ -1382,7 +1855,8 @@ def calibrate_tau(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, n_sys: int, noise,
     pr = rng_m + noise.sample(rng, (n_runs, e_n, s_n), t_s=t)
     run = run_llr_bank(np.broadcast_to(sv, (e_n, s_n, 3)), pr, np.ones((e_n, s_n), bool),
                        t, sys_idx, n_sys, noise, model,
-                       n_particles=n_particles, window=window, burn_in=burn_in, rng=rng)
+                       n_particles=n_particles, window=window, burn_in=burn_in, rng=rng,
+                       kernel=kernel)
     beta = run.beta[:, run.armed]
     return Calibration(threshold_from_samples(beta, p_fa_window, window), beta, p_fa_window)
 
@@ -1415,8 +1889,10 @@ def calibration_key(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, noise, model: Process
     """A string naming one calibration configuration.
 
     It holds the noise model, the process model, ``config`` (N, W, burn-in, p_fa, run
-    counts) and the geometry as rounded local lines of sight (0.02 rad), so a scenario
-    that changes only its faults, seed or duration reuses the same threshold.
+    counts, epoch interval, seed), the geometry as rounded local lines of sight (0.02 rad),
+    so a scenario that changes only its faults, seed or duration reuses the same
+    threshold, and the version of the code that computes it (:func:`calibration_code_version`):
+    a threshold kept on disk is never reused by code that would compute another one.
     """
     sv = np.asarray(pos_sv_ecef_m, dtype=float)
     rx = np.asarray(pos_rx_ecef_m, dtype=float)
@@ -1428,50 +1904,179 @@ def calibration_key(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, noise, model: Process
                    f"{int(round(c / 0.02))}"
                    for s, (a, b, c) in zip(np.asarray(sys_idx)[order], los[order], strict=True))
     cfg = ",".join(f"{k}={config[k]!r}" for k in sorted(config))
-    return f"{noise!r}|{model!r}|{cfg}|{geo}"
+    return f"{noise!r}|{model!r}|{cfg}|{geo}|code={calibration_code_version()}"
+
+
+@functools.lru_cache(maxsize=1)
+def calibration_code_version() -> str:
+    """A fingerprint of what a calibrated ``tau`` depends on besides its key's fields: the
+    source of the filters (this module), of the noise models and of the least-squares
+    start, and the numpy version (its random streams). 16 hex digits of a SHA-256."""
+    import hashlib
+    import sys
+
+    from .. import lsq
+    from ..measure import noise as noise_module
+
+    h = hashlib.sha256(np.__version__.encode())
+    for mod in (sys.modules[__name__], noise_module, lsq):
+        with open(mod.__file__, "rb") as f:
+            h.update(f.read())
+    return h.hexdigest()[:16]
+
+
+#: Where the on-disk threshold cache lives when ``RAIM_STUDIO_CACHE_DIR`` is not set:
+#: ``$XDG_CACHE_HOME/raim-studio`` (``~/.cache/raim-studio`` without ``XDG_CACHE_HOME``).
+CACHE_APP_DIR = "raim-studio"
+#: Most calibrations kept on disk (a few kB to 40 kB each); the oldest go first.
+CACHE_MAX_FILES = 500
+_DISK_WARNED: set[str] = set()
 
 
 def default_cache_path():
-    """The optional on-disk threshold cache: ``$XDG_CACHE_HOME/raimcore/pf_llr_tau.json``
-    (``~/.cache/raimcore/pf_llr_tau.json`` when ``XDG_CACHE_HOME`` is not set)."""
+    """The on-disk threshold cache directory: ``$RAIM_STUDIO_CACHE_DIR/pf_llr_tau`` if set,
+    else ``$XDG_CACHE_HOME/raim-studio/pf_llr_tau`` (``~/.cache/raim-studio/pf_llr_tau``).
+    One small JSON file per calibration (:func:`cached_tau`)."""
     import os
     from pathlib import Path
 
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "raimcore" / "pf_llr_tau.json"
+    root = os.environ.get("RAIM_STUDIO_CACHE_DIR")
+    if not root:
+        base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+        root = str(Path(base) / CACHE_APP_DIR)
+    return Path(root) / "pf_llr_tau"
 
 
-def cached_tau(key: str, compute, *, cache: str = "memory", path=None) -> float:
-    """``tau`` for ``key`` from the cache, else ``compute()`` (a float) stored in it.
+def _disk_file(directory, key: str):
+    import hashlib
 
-    Parameters
-    ----------
-    cache : ``"memory"`` (default: this process only), ``"disk"`` (also a JSON file at
-        ``path``, default :func:`default_cache_path`, shared between processes and runs)
-        or ``"off"`` (always recompute).
-    """
+    return directory / (hashlib.sha256(key.encode()).hexdigest()[:32] + ".json")
+
+
+def _disk_read(directory, key: str, field: str, parse):
+    """The value stored for ``key`` under ``directory`` (its ``field``, through ``parse``),
+    or None: absent, unreadable, another key or not a valid value, never trusted."""
     import json
+
+    try:
+        with open(_disk_file(directory, key), encoding="utf-8") as f:
+            entry = json.load(f)
+        return parse(entry[field]) if entry.get("key") == key else None
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return None
+
+
+def _disk_write(directory, key: str, field: str, value) -> None:
+    """Store ``value`` (JSON) for ``key`` atomically (a temporary file renamed over the entry, so
+    concurrent processes never read half a file); a directory that cannot be written
+    leaves the threshold in memory only, with one warning per directory."""
+    import json
+    import os
+    import tempfile
+
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tau-", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                json.dump({"key": key, field: value}, f)
+            os.replace(tmp, _disk_file(directory, key))
+        except BaseException:
+            os.unlink(tmp)
+            raise
+        _disk_prune(directory)
+    except OSError as exc:
+        if str(directory) not in _DISK_WARNED:
+            _DISK_WARNED.add(str(directory))
+            warnings.warn(f"PF-LLR threshold cache {directory} is not writable ({exc}); "
+                          "calibrated thresholds are kept in memory only", UserWarning,
+                          stacklevel=3)
+
+
+def _disk_prune(directory) -> None:
+    """Keep the newest :data:`CACHE_MAX_FILES` entries (a code change makes new keys: the
+    old entries would otherwise pile up)."""
+    def mtime(f):
+        try:
+            return f.stat().st_mtime
+        except OSError:  # removed meanwhile by another process
+            return -math.inf
+
+    try:
+        entries = sorted(directory.glob("*.json"), key=mtime)
+        for old in entries[:max(len(entries) - CACHE_MAX_FILES, 0)]:
+            old.unlink(missing_ok=True)
+    except OSError:
+        pass  # pruning is housekeeping: the entry just written is in place
+
+
+def _finite_float(value) -> float:
+    tau = float(value)
+    if not math.isfinite(tau):
+        raise ValueError("not a finite threshold")
+    return tau
+
+
+def _float_samples(value) -> np.ndarray:
+    beta = np.asarray(value, dtype=float)
+    if beta.ndim != 2 or beta.size == 0:
+        raise ValueError("not a (R, M) sample")
+    return beta
+
+
+def _cached(key: str, compute, cache: str, path, field: str, parse, dump):
+    """The memory / disk cache behind :func:`cached_tau` and :func:`cached_samples`."""
     from pathlib import Path
 
     check_choice("tau_cache", cache, ("memory", "disk", "off"))
     if cache == "off":
-        return float(compute())
+        return parse(compute())
     if key in _TAU_CACHE:
         return _TAU_CACHE[key]
-    file = Path(path) if path is not None else default_cache_path()
-    stored: dict[str, float] = {}
-    if cache == "disk" and file.is_file():
-        try:
-            stored = json.loads(file.read_text())
-        except (OSError, ValueError):
-            stored = {}  # an unreadable cache is rebuilt, never trusted
-        if key in stored:
-            _TAU_CACHE[key] = float(stored[key])
-            return _TAU_CACHE[key]
-    tau = float(compute())
-    _TAU_CACHE[key] = tau
+    directory = Path(path) if path is not None else default_cache_path()
     if cache == "disk":
-        stored[key] = tau
-        file.parent.mkdir(parents=True, exist_ok=True)
-        file.write_text(json.dumps(stored, indent=0))
-    return tau
+        value = _disk_read(directory, key, field, parse)
+        if value is not None:
+            _TAU_CACHE[key] = value
+            return value
+    value = parse(compute())
+    _TAU_CACHE[key] = value
+    if cache == "disk":
+        _disk_write(directory, key, field, dump(value))
+    return value
+
+
+def cached_tau(key: str, compute, *, cache: str = "disk", path=None) -> float:
+    """``tau`` for ``key`` from the cache, else ``compute()`` (a float) stored in it.
+
+    Parameters
+    ----------
+    key : the calibration's name (:func:`calibration_key`).
+    compute : callable returning the threshold (the Monte Carlo calibration).
+    cache : ``"disk"`` (default: in memory and in a directory shared between sessions,
+        processes and runs, ``path`` or :func:`default_cache_path`, one small JSON file per
+        key written atomically; if it cannot be written, in memory only, one warning),
+        ``"memory"`` (this process only) or ``"off"`` (always recompute).
+    path : the cache directory (default :func:`default_cache_path`).
+
+    Returns
+    -------
+    float, the threshold.
+
+    See Also
+    --------
+    cached_samples : the same for the fault-free ``beta`` samples behind a threshold.
+    """
+    return _cached(key, compute, cache, path, "tau", _finite_float, float)
+
+
+def cached_samples(key: str, compute, *, cache: str = "disk", path=None) -> np.ndarray:
+    """The fault-free ``beta`` samples (R, M) of a calibration (:attr:`Calibration.beta`)
+    for ``key`` from the cache, else ``compute()`` stored in it (as :func:`cached_tau`).
+
+    The samples do not depend on the false-alarm target: kept instead of ``tau``, a
+    change of ``p_fa_window`` needs only :func:`threshold_from_samples`, no new Monte
+    Carlo runs.
+    """
+    return _cached(key, compute, cache, path, "beta", _float_samples,
+                   lambda beta: beta.tolist())

@@ -5,7 +5,8 @@ satellite, auxiliary filter j every satellite but j. Each epoch, each filter sco
 own measurement set with its predictive likelihood; the LLR of "satellite j faulty" is
 ``s_j(k) = ln p_aux_j(y^(-j)) - ln p_main(y)``, summed over a sliding window of W epochs.
 ``beta(k) = max_j S_j(k)`` is compared with a threshold ``tau`` calibrated by fault-free
-Monte Carlo runs of the same bank (cached per configuration); on an alarm the satellite
+Monte Carlo runs of the same bank (cached per configuration, in memory and on disk:
+:func:`~raimcore.algorithms.pf.cached_samples`); on an alarm the satellite
 ``argmax_j S_j`` is named and excluded: the position after exclusion is auxiliary filter
 j's estimate. Where the receiver says its clock restarted (``Measurements.clock_reset``)
 the filters re-initialise their clock offsets from that epoch's measurements, so the LLRs
@@ -14,10 +15,14 @@ compare only the satellite-to-satellite part (:func:`~raimcore.algorithms.pf.run
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
+
 import numpy as np
 
 from ..measure.noise import scaled
 from ..schema import option
+from . import pf
 from .base import (
     STATUS_NOT_ARMED,
     STATUS_OK,
@@ -31,11 +36,12 @@ from .pf import (
     MS_M,
     PROCESS_MODELS,
     ProcessModel,
-    cached_tau,
+    cached_samples,
     calibrate_tau,
     calibration_key,
     robust_fix,
     run_llr_bank,
+    threshold_from_samples,
 )
 
 SUMMARY = (
@@ -81,6 +87,14 @@ CLOUD_PARTICLES = 200
 CLOUD_BUDGET = 2_000_000
 
 
+#: Bank runs kept for reuse (:func:`_bank_run`): a change of the threshold options alone
+#: (``tau``, ``p_fa_window``, ``tau_sets``, ``tau_cache``) re-tests the same run. At most
+#: this many runs, of at most BANK_RUN_CACHE_BYTES together (a longer run is not kept).
+BANK_RUN_CACHE_SIZE = 4
+BANK_RUN_CACHE_BYTES = 64 * 2**20
+_BANK_RUNS: OrderedDict[str, object] = OrderedDict()
+
+
 #: Process-model options, shared with ``ekf`` (one declaration, one meaning).
 PROCESS_OPTIONS = (
     option("model", "choice", "static", "process model of the filters' state",
@@ -107,7 +121,7 @@ OPTIONS = (
            "calibrated by fault-free Monte Carlo runs"),
     option("p_fa_window", float, 1e-3, "calibration target: false alarms per window",
            lo=0.0, hi=1.0, lo_open=True, hi_open=True),
-    option("tau_cache", "choice", "memory", "where calibrated thresholds are kept",
+    option("tau_cache", "choice", "disk", "where calibrated thresholds are kept",
            choices=("memory", "disk", "off")),
     option("tau_sets", "choice", "first", "calibrate once for the satellites in view at "
            "the first armed epoch (first), or once per satellite set in view (each)",
@@ -156,16 +170,54 @@ def _threshold(data: Measurements, model: ProcessModel, n: int, window: int, bur
     steps = np.diff(np.asarray(data.t_s, dtype=float))
     steps = steps[steps > 0]
     dt = float(np.median(steps)) if steps.size else 1.0  # the scenario's epoch interval
-    config = dict(n_particles=n, window=window, burn_in=burn_in, p_fa_window=p_fa,
+    config = dict(n_particles=n, window=window, burn_in=burn_in,
                   n_runs=CALIBRATION_RUNS, n_armed=CALIBRATION_ARMED_EPOCHS, dt_s=dt)
-    key = calibration_key(sv, rx, sys_idx, noise, model, **config)
+    # The fault-free beta samples are cached, not tau: they do not depend on p_fa_window.
+    key = calibration_key(sv, rx, sys_idx, noise, model, seed=CALIBRATION_SEED,
+                          kept="beta samples", **config)
 
     def compute():
         rng = np.random.default_rng(CALIBRATION_SEED)
         return calibrate_tau(sv, rx, sys_idx, len(data.systems), noise, model, rng=rng,
-                             **config).tau
+                             p_fa_window=p_fa, **config).beta
 
-    return cached_tau(key, compute, cache=cache)
+    return threshold_from_samples(cached_samples(key, compute, cache=cache), p_fa, window)
+
+
+def _bank_run(data: Measurements, model: ProcessModel, n: int, window: int, burn_in: int,
+              scale):
+    """:func:`~raimcore.algorithms.pf.run_llr_bank` on ``data``, or the same run kept from
+    a recent call with equal inputs (the measurements' arrays and seed, the noise and
+    process models, N, W, burn-in: everything the run reads; not the threshold options,
+    which it does not read). Returns the run and whether it is kept (shared: not to be
+    changed)."""
+    h = hashlib.sha256()
+    for arr in (data.pos_sv_ecef_m, data.pr_m, data.used, data.t_s, data.sys_idx,
+                data.clock_reset, scale):
+        a = np.ascontiguousarray(np.asarray(arr if arr is not None else np.nan))
+        h.update(f"{a.dtype}{a.shape}".encode())
+        h.update(a.tobytes())
+    h.update(repr((data.noise, model, n, window, burn_in, int(data.seed),
+                   len(data.systems), pf.DEFAULT_KERNEL)).encode())
+    key = h.hexdigest()
+    if key in _BANK_RUNS:
+        _BANK_RUNS.move_to_end(key)
+        return _BANK_RUNS[key], True
+    e_n = data.pr_m.shape[0]
+    keep = min(CLOUD_PARTICLES, CLOUD_BUDGET // max(e_n, 1))
+    bank = run_llr_bank(data.pos_sv_ecef_m, data.pr_m[None], data.used, data.t_s,
+                        data.sys_idx, len(data.systems), data.noise, model, n_particles=n,
+                        window=window, burn_in=burn_in, rng=data.rng(0), scale=scale,
+                        keep_cloud=keep, clock_reset=data.clock_reset)
+    size = lambda run: sum(getattr(run, f).nbytes for f in run.__dataclass_fields__  # noqa: E731
+                           if isinstance(getattr(run, f), np.ndarray))
+    if size(bank) > BANK_RUN_CACHE_BYTES:
+        return bank, False
+    _BANK_RUNS[key] = bank
+    while (len(_BANK_RUNS) > BANK_RUN_CACHE_SIZE
+           or sum(size(r) for r in _BANK_RUNS.values()) > BANK_RUN_CACHE_BYTES):
+        _BANK_RUNS.popitem(last=False)
+    return bank, True
 
 
 def run(data: Measurements, options: dict) -> AlgorithmOutput:
@@ -175,9 +227,10 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
     first fix before LLRs are accumulated), ``tau`` (threshold; ``"auto"`` or ``None``:
     calibrated),
     ``p_fa_window`` (calibration target, false alarms per window), ``tau_cache``
-    (``"memory"``, ``"disk"``, ``"off"``), ``tau_sets`` (``"first"``: calibrate once, for
-    the satellites in view at the first armed epoch; ``"each"``: once per satellite set in
-    view, each armed epoch tested against its own set's tau), ``model``, ``q_pos_mps``,
+    (``"disk"``, the default: kept across sessions and runs; ``"memory"``, ``"off"``),
+    ``tau_sets`` (``"first"``: calibrate once, for the satellites in view at the first
+    armed epoch; ``"each"``: once per satellite set in view, each armed epoch tested
+    against its own set's tau), ``model``, ``q_pos_mps``,
     ``q_vel_mps2``, ``q_clk_mps``, ``q_drift_mps2`` (process model,
     :class:`raimcore.algorithms.pf.ProcessModel`). Column ``clock_jump_ms``: a receiver
     clock jump absorbed at that epoch (ms; 0: none), at a restart flagged in
@@ -189,16 +242,14 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
     model = process_model(options, len(data.systems))
     e_n, s_n = data.pr_m.shape
     scale = noise_scale(data)
-    keep = min(CLOUD_PARTICLES, CLOUD_BUDGET // max(e_n, 1))
-    bank = run_llr_bank(data.pos_sv_ecef_m, data.pr_m[None], data.used, data.t_s,
-                        data.sys_idx, len(data.systems), data.noise, model, n_particles=n,
-                        window=window, burn_in=burn_in, rng=data.rng(0), scale=scale,
-                        keep_cloud=keep, clock_reset=data.clock_reset)
+    bank, kept = _bank_run(data, model, n, window, burn_in, scale)
+    own = (lambda a: a.copy()) if kept else (lambda a: a)  # noqa: E731
     armed = bank.armed
     extras = {}
     if bank.cloud is not None:
         # The main filter's cloud (ECEF, m); displays show it around the true position.
-        extras = {"particles_ecef_m": bank.cloud[..., :3], "particle_weight": bank.cloud_weight}
+        extras = {"particles_ecef_m": own(bank.cloud[..., :3]),
+                  "particle_weight": own(bank.cloud_weight)}
     tau = np.full(e_n, np.nan)
     if tau_opt is not None:
         tau[:] = tau_opt
@@ -230,7 +281,7 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
         pos_before_ecef_m=pos_before, pos_after_ecef_m=pos_after, excluded=excluded,
         isolated=faulty,
         per_sat={"llr": np.where(armed[:, None], bank.cum_llr[0], np.nan)},
-        columns={"beta": np.where(armed, beta, np.nan), "n_eff": bank.n_eff[0, :, 0],
+        columns={"beta": np.where(armed, beta, np.nan), "n_eff": own(bank.n_eff[0, :, 0]),
                  "memory_epochs": np.full(e_n, window),
                  "clock_jump_ms": clock_jump_column(bank.clock_jump_m[0])},
         extras=extras,
