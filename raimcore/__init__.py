@@ -34,3 +34,11 @@ algorithms      the registry of RAIM algorithms
 """
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name):  # raimcore.fde / FdeResult, imported on first use (light import)
+    if name in ("fde", "FdeResult"):
+        from . import snapshot
+
+        return getattr(snapshot, name)
+    raise AttributeError(f"module 'raimcore' has no attribute {name!r}")

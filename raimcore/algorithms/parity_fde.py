@@ -2,15 +2,15 @@
 
 Snapshot algorithm, batched over all epochs at once: satellites are switched off by zero
 weights, so the batch needs no grouping by visible set and an exclusion is one more weight
-set to zero.
+set to zero. The kernel lives in :mod:`raimcore.snapshot` (shared with :func:`raimcore.fde`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..lsq import wls
 from ..schema import option
+from ..snapshot import FDE_OUTPUTS, _parity_fde
 from .base import (
     STATUS_NO_ISOLATION,
     STATUS_OK,
@@ -20,8 +20,6 @@ from .base import (
     Measurements,
     register,
 )
-from .mss import classic_raim
-from .parity import parity_statistics
 
 SUMMARY = (
     "The parity vector collects the part of the measurements that no position and clock "
@@ -57,50 +55,29 @@ OPTIONS = (
 
 def run(data: Measurements, options: dict) -> AlgorithmOutput:
     """Run parity FDE on every epoch; ``options["max_exclusions"]`` (default 1) sets how
-    many satellites may be excluded one after another (greedy) at one epoch."""
-    max_excl = options["max_exclusions"]
+    many satellites may be excluded one after another (greedy) at one epoch.
+
+    The kernel is :func:`raimcore.snapshot._parity_fde`, the one behind
+    :func:`raimcore.fde` (one implementation); here it also returns the per-satellite
+    isolation, fault size and isolability and the classic slope-based protection levels
+    (Brown 1992; see :func:`raimcore.algorithms.mss.classic_raim`), for comparison with
+    solution separation (seed 001).
+    """
     w = np.where(data.used, 1.0 / data.sigma_m**2, 0.0)
-    n_sys = len(data.systems)
-    before = wls(data.pos_sv_ecef_m, data.pr_m, w, data.sys_idx, n_sys)
-    st = parity_statistics(before.h_enu, before.resid_m, w, data.p_fa, before.dof)
-    available = before.available & (before.dof >= 1)
-    # Classic slope-based protection levels of the chi-square detector (Brown 1992; see
-    # raimcore.algorithms.mss.classic_raim), for comparison with solution separation (seed 001).
-    pl = classic_raim(before.h_enu, before.resid_m, w, np.ones(w.shape[-1], dtype=bool),
-                      data.p_fa, data.p_md)
-    status = np.where(~available, STATUS_UNAVAILABLE,
-                      np.where(before.dof >= 2, STATUS_OK, STATUS_NO_ISOLATION)).astype(object)
-    excluded = np.zeros(w.shape, dtype=bool)
-    after_pos = before.pos_ecef_m.copy()
-    after_stat = st.statistic.copy()
-    # State of the greedy exclusion loop: does the current set still alarm, and whom to drop.
-    act = st.alarm & (st.best >= 0)
-    drop = st.best
-    for _ in range(max_excl):
-        rows = np.flatnonzero(act)
-        if rows.size == 0:
-            break
-        excluded[rows, drop[rows]] = True
-        w_rows = np.where(excluded[rows], 0.0, w[rows])
-        # Re-solve only the epochs that changed (seed 000 section 1.3, reconstruction).
-        sub = wls(data.pos_sv_ecef_m[rows], data.pr_m[rows], w_rows, data.sys_idx, n_sys,
-                  x0_ecef_m=after_pos[rows])
-        sub_st = parity_statistics(sub.h_enu, sub.resid_m, w_rows, data.p_fa, sub.dof)
-        after_pos[rows] = sub.pos_ecef_m
-        after_stat[rows] = sub_st.statistic
-        act = np.zeros_like(act)
-        act[rows] = sub_st.alarm & (sub_st.best >= 0)
-        drop = np.full_like(drop, -1)
-        drop[rows] = sub_st.best
-    alarm = st.alarm
+    out = _parity_fde(data.pos_sv_ecef_m, data.pr_m, w, np.asarray(data.sys_idx),
+                      len(data.systems), data.p_fa, options["max_exclusions"],
+                      outputs=tuple(FDE_OUTPUTS), p_md=data.p_md)
+    status = np.where(~out["valid"], STATUS_UNAVAILABLE,
+                      np.where(out["dof"] >= 2, STATUS_OK, STATUS_NO_ISOLATION)).astype(object)
+    alarm = out["alarm"]
     return AlgorithmOutput(
-        status=status, statistic=st.statistic, threshold=st.threshold, alarm=alarm,
-        pos_before_ecef_m=before.pos_ecef_m, pos_after_ecef_m=after_pos, excluded=excluded,
-        isolated=np.where(alarm, st.best, -1),
-        per_sat={"isolation": st.isolation, "fault_size_m": st.fault_size_m,
-                 "isolability": st.isolability},
-        columns={"dof": st.dof, "statistic_after": after_stat, "hpl_m": pl.hpl_m,
-                 "vpl_m": pl.vpl_m},
+        status=status, statistic=out["statistic"], threshold=out["threshold"], alarm=alarm,
+        pos_before_ecef_m=out["pos_before"], pos_after_ecef_m=out["pos_after"],
+        excluded=out["excluded"], isolated=np.where(alarm, out["best"], -1),
+        per_sat={"isolation": out["isolation"], "fault_size_m": out["fault_size_m"],
+                 "isolability": out["isolability"]},
+        columns={"dof": out["dof"], "statistic_after": out["statistic_after"],
+                 "hpl_m": out["hpl_m"], "vpl_m": out["vpl_m"]},
     )
 
 
