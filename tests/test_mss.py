@@ -351,3 +351,221 @@ def test_pair_solutions_equal_explicit_solves():
         _, _, x_kl = explicit_sub(h[e], w[e], z[e], [k, l])
         np.testing.assert_allclose(res.pair_dx_m[e, p], x_kl, atol=one_um)
     assert not np.any(tested[:, np.any(res.pairs == 7, axis=1)])  # the baro row stays
+
+
+# --------------------------------------------------------------------------------------
+# Agreement of the fast kernels with the reference path (issue 17). One suite over seeded
+# cases: decisions (alarms, statuses, identification verdicts, indices) identical, numbers
+# (protection levels, solutions, separations, scores) to 1e-6 relative.
+
+rel_1e6 = 1e-6  # agreement tolerance, relative
+one_nm = 1e-9  # absolute floor for values that are zero up to round-off (m, m^2)
+# Identification scores (dimensionless) of a sub-sub-solution close to unobservable carry
+# round-off amplified by 1 / (1 - l_kj) in both paths: seen up to 2e-6 relative over 80k
+# random epochs (the pass/fail verdicts were identical, and they are compared exactly).
+score_rtol = 1e-4
+
+
+def _cone_los(rng, n_epochs, n_sat, alpha_rad):
+    """Lines of sight within a cone of half-angle ``alpha_rad`` (E,) around the zenith."""
+    az = rng.uniform(0.0, 2.0 * np.pi, (n_epochs, n_sat))
+    off = alpha_rad[:, None] * np.sqrt(rng.uniform(0.0, 1.0, (n_epochs, n_sat)))
+    return np.stack([np.sin(off) * np.sin(az), np.sin(off) * np.cos(az), np.cos(off)], -1)
+
+
+AGREEMENT_CASES = ("baro", "nobaro", "nan_satellites", "too_few", "two_faults", "two_systems",
+                   "ill_conditioned")
+
+
+def agreement_case(name):
+    """Seeded inputs ``(h, z, w, is_sat)`` of one agreement case."""
+    rng = np.random.default_rng(AGREEMENT_CASES.index(name) + 100)
+    if name in ("baro", "nobaro"):  # 1300 epochs: crosses several blocks
+        h, w, sd, is_sat = setup(rng, 1300, 10, baro=name == "baro")
+        z = rng.normal(size=w.shape) * sd
+        z[np.arange(1300), rng.integers(0, 10, 1300)] += rng.choice([0.0, 300.0, 1000.0], 1300)
+    elif name == "nan_satellites":
+        h, w, sd, is_sat = setup(rng, 600, 9)
+        z = rng.normal(size=w.shape) * sd
+        z[rng.uniform(size=z.shape) < 0.15] = np.nan
+        z[:, -1] = rng.normal(size=600) * SIGMA_BARO_M  # the baro row stays finite
+        z[np.arange(600), rng.integers(0, 9, 600)] += 1000.0
+        h = h.copy()
+        h[rng.uniform(size=h.shape[:2]) < 0.03] = np.nan  # and some geometry rows
+    elif name == "too_few":  # 2..7 satellites used, with and without baro
+        h, w, sd, is_sat = setup(rng, 600, 7)
+        w = w.copy()
+        n_used = rng.integers(2, 8, 600)
+        w[:, :7] *= np.arange(7)[None, :] < n_used[:, None]
+        w[::2, -1] = 0.0
+        z = rng.normal(size=w.shape) * sd
+        z[:, 0] += 1000.0
+    elif name == "two_faults":  # the second identification level
+        h, w, sd, is_sat = setup(rng, 300, 9)
+        z = rng.normal(size=w.shape) * sd
+        z[:, :2] += 1000.0
+    elif name == "two_systems":  # a clock state pinned where its only satellite is unused
+        sys_idx = np.array([0, 0, 0, 0, 0, 1, 1, 0])
+        h = mss.geometry_rows(random_los(rng, 500, 8), sys_idx, 2, baro=True)
+        w = np.r_[np.full(8, SIGMA_M**-2), SIGMA_BARO_M**-2] * np.ones((500, 1))
+        w[:250, 5:7] = 0.0
+        is_sat = np.r_[np.ones(8, bool), False]
+        z = rng.normal(size=w.shape) * np.r_[np.full(8, SIGMA_M), SIGMA_BARO_M]
+        z[np.arange(500), rng.integers(0, 8, 500)] += 800.0
+    elif name == "ill_conditioned":  # satellites in a narrowing cone: near-singular and
+        alpha = np.radians(np.geomspace(0.001, 30.0, 400))  # singular geometry
+        h = mss.geometry_rows(_cone_los(rng, 400, 7, alpha), np.zeros(7, int), 1, baro=False)
+        w = np.full((400, 7), SIGMA_M**-2)
+        is_sat = np.ones(7, bool)
+        z = rng.normal(size=w.shape) * SIGMA_M
+        z[:, 3] += 500.0
+    else:
+        raise ValueError(name)
+    return h, z, w, is_sat
+
+
+def assert_same_result(fast, ref, rtol=rel_1e6, loose=None):
+    """Every field: equal if boolean, integer or text, else to ``rtol`` relative.
+
+    ``loose`` (B,) bool: epochs whose numbers are compared to 1e-3 only (decisions still
+    exactly), see :func:`min_one_minus_leverage`.
+    """
+    for name in fast.__dataclass_fields__:
+        a, b = np.asarray(getattr(fast, name)), np.asarray(getattr(ref, name))
+        assert a.shape == b.shape, name
+        if a.dtype.kind == "f":
+            tol = max(rtol, score_rtol) if name in ("ident_score", "pair_score") else rtol
+            if loose is None or name == "k_fa":
+                a_t, b_t = a, b
+            else:
+                a_t, b_t = a[~loose], b[~loose]
+                np.testing.assert_allclose(a[loose], b[loose], rtol=1e-3, equal_nan=True,
+                                           err_msg=name)
+            np.testing.assert_allclose(a_t, b_t, rtol=tol, atol=one_nm * tol / rel_1e6,
+                                       equal_nan=True, err_msg=name)
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+def min_one_minus_leverage(h, w, is_sat):
+    """Smallest ``1 - l_i`` over the used satellites of each epoch (explicit solve).
+
+    A sub-solution's separation is conditioned by ``1 / (1 - l_i)``: where that is 1e6 or
+    more, two correct implementations differ by more than 1e-6 relative (seen: a 9000 km
+    separation of a satellite with ``1 - l_i`` ~ 1e-9, equal to 1.2e-6 relative).
+    """
+    w = np.where(np.isfinite(w), w, 0.0)
+    a = np.einsum("emi,em,emj->eij", h, w, h)
+    p = np.linalg.pinv(a, hermitian=True)  # singular epochs: any value, they are NaN rows
+    lev = w * np.einsum("emi,eij,emj->em", h, p, h)
+    return np.min(np.where((w > 0) & is_sat, 1.0 - lev, np.inf), axis=-1)
+
+
+@pytest.mark.parametrize("case", AGREEMENT_CASES)
+@pytest.mark.parametrize("kernel", ["mss", "classic_raim"])
+def test_fast_kernel_agrees_with_reference(case, kernel):
+    h, z, w, is_sat = agreement_case(case)
+    fast = getattr(mss, kernel)(h, z, w, is_sat, 1e-5, 1e-3)
+    ref = getattr(mss, f"{kernel}_reference")(h, z, w, is_sat, 1e-5, 1e-3)
+    assert_same_result(fast, ref)
+    # The cases have power: each shows what it is there for.
+    status = np.asarray(ref.status)
+    if case in ("baro", "nan_satellites") and kernel == "mss":
+        assert ref.alarm.mean() > 0.3 and np.any(ref.ident_status == mss.IDENT_UNIQUE)
+    if case == "two_faults" and kernel == "mss":
+        assert np.any(ref.ident_status == mss.IDENT_MULTIPLE)
+        assert np.any(ref.ident_pair_unique >= 0) and np.any(np.isfinite(ref.pair_score))
+    if case == "too_few":
+        assert {mss.STATUS_UNAVAILABLE, mss.STATUS_NO_ISOLATION, mss.STATUS_OK} <= set(status)
+    if case == "ill_conditioned":
+        assert {mss.STATUS_UNAVAILABLE, mss.STATUS_OK} <= set(status)
+
+
+def test_ill_conditioned_epochs_are_decided_by_the_reference_test():
+    """The fast singular-geometry test hands the epochs it cannot decide to the reference:
+    here some of them are available (ill-conditioned) and some unavailable (singular)."""
+    h, z, w, is_sat = agreement_case("ill_conditioned")
+    _, _, sure = mss._main_covariance(h, w)
+    res = mss.mss(h, z, w, is_sat, 1e-5, 1e-3)
+    handed_over = ~sure
+    assert np.any(handed_over & (res.status != mss.STATUS_UNAVAILABLE))
+    assert np.any(handed_over & (res.status == mss.STATUS_UNAVAILABLE))
+    assert np.all(res.status[sure] != mss.STATUS_UNAVAILABLE)
+
+
+def test_agreement_unbatched_and_two_batch_axes():
+    h, z, w, is_sat = agreement_case("baro")
+    assert_same_result(mss.mss(h[5], z[5], w[5], is_sat, 1e-5, 1e-3),
+                       mss.mss_reference(h[5], z[5], w[5], is_sat, 1e-5, 1e-3))
+    h2, z2, w2 = (a[:600].reshape((2, 300) + a.shape[1:]) for a in (h, z, w))
+    fast = mss.mss(h2, z2, w2, is_sat, 1e-5, 1e-3)
+    assert fast.hpl_m.shape == (2, 300) and fast.pair_dx_m.shape[:2] == (2, 300)
+    assert_same_result(fast, mss.mss_reference(h2, z2, w2, is_sat, 1e-5, 1e-3))
+
+
+def test_results_do_not_depend_on_the_block_size(monkeypatch):
+    h, z, w, is_sat = agreement_case("two_faults")
+    default = mss.mss(h, z, w, is_sat, 1e-5, 1e-3)
+    monkeypatch.setattr(mss, "_block_epochs", lambda n_rows: 7)
+    assert_same_result(mss.mss(h, z, w, is_sat, 1e-5, 1e-3), default, rtol=1e-12)
+
+
+def test_second_level_fields_without_second_level_epochs():
+    """No multiple-fault verdict: the pair fields are their fill values, taking no memory."""
+    rng = np.random.default_rng(31)
+    h, w, sd, is_sat = setup(rng, 50, 8)
+    res = mss.mss(h, rng.normal(size=w.shape) * sd, w, is_sat, 1e-5, 1e-3)
+    assert res.pair_dx_m.shape == (50, 36, 4)
+    assert np.all(np.isnan(res.pair_dx_m)) and not np.any(res.pair_pass)
+    assert np.all(res.ident_pair_unique == -1)
+    assert not res.pair_score.flags.writeable
+
+
+def test_redundancy_one_sub_sub_solutions_are_unobservable():
+    """5 satellites, no baro: a sub-sub-solution has 3 measurements for 4 states, so no
+    candidate can pass (both paths say so, whatever round-off in 1 - l_kj says)."""
+    rng = np.random.default_rng(32)
+    h, w, sd, is_sat = setup(rng, 300, 5, baro=False)
+    z = rng.normal(size=w.shape) * sd
+    z[:, 1] += 1000.0
+    for fn in (mss.mss, mss.mss_reference):
+        res = fn(h, z, w, is_sat, 1e-5, 1e-3)
+        assert np.all(res.status == mss.STATUS_NO_ISOLATION)
+        assert np.all(np.isinf(res.ident_score[:, :5])) and not np.any(res.ident_pass)
+        assert np.all(res.ident_status[res.alarm] == mss.IDENT_UNAVAILABLE)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n_sat=st.integers(4, 12), baro=st.booleans(),
+       p_nan=st.sampled_from([0.0, 0.2]), bias_m=st.sampled_from([0.0, 150.0, 1000.0]))
+def test_fast_kernels_agree_with_reference_property(seed, n_sat, baro, p_nan, bias_m):
+    rng = np.random.default_rng(seed)
+    h, w, sd, is_sat = setup(rng, 40, n_sat, baro=baro)
+    z = rng.normal(size=w.shape) * sd
+    z[:, :n_sat][rng.uniform(size=(40, n_sat)) < p_nan] = np.nan
+    z[np.arange(40), rng.integers(0, n_sat, 40)] += bias_m
+    w_used = np.where(np.isfinite(z), w, 0.0)
+    loose = min_one_minus_leverage(h, w_used, is_sat) < 1e-6
+    for kernel in ("mss", "classic_raim"):
+        assert_same_result(getattr(mss, kernel)(h, z, w, is_sat, 1e-4, 1e-3),
+                           getattr(mss, f"{kernel}_reference")(h, z, w, is_sat, 1e-4, 1e-3),
+                           loose=loose)
+
+
+@pytest.mark.parametrize("edge", ["no_satellite_rows", "empty_batch", "all_unused",
+                                  "shared_geometry", "non_contiguous_satellite_rows"])
+def test_fast_kernels_agree_with_reference_on_edges(edge):
+    rng = np.random.default_rng(33)
+    h, w, sd, is_sat = setup(rng, 20, 6)
+    z = rng.normal(size=w.shape) * sd
+    z[:, 2] += 1000.0
+    args = {"no_satellite_rows": (h, z, w, np.zeros(7, bool)),
+            "empty_batch": (h[:0], z[:0], w[:0], is_sat),
+            "all_unused": (h, z, np.zeros_like(w), is_sat),
+            "shared_geometry": (h[0], z, w, is_sat),  # (M, n) against a batch of z
+            "non_contiguous_satellite_rows": (h, z, w, np.array([1, 0, 1, 1, 1, 1, 1], bool)),
+            }[edge]
+    for kernel in ("mss", "classic_raim"):
+        fast = getattr(mss, kernel)(*args, 1e-5, 1e-3)
+        assert_same_result(fast, getattr(mss, f"{kernel}_reference")(*args, 1e-5, 1e-3))
+        assert fast.hpl_m.shape == (len(args[1]),)

@@ -23,6 +23,16 @@ direction ``v_i``, so ``dP_i`` has rank one and the horizontal test ``d_i > T_i`
 ``sqrt(w_i) |r_i| / sqrt(1 - l_i) > k_fa``; the vertical test is the same inequality
 whenever ``v_i[U] != 0``. The code nevertheless evaluates the spec's formulas as written.
 
+Two paths compute the same results (issue 17). :func:`mss` and :func:`classic_raim` are the
+fast kernels: blocks of epochs sized to stay in cache, ``P0`` from an entry-wise Cholesky
+factor of the scaled normal matrix, the sub-sub-solution tests through the rank-one
+identity above in whitened form, and the fields of the second identification level
+allocated only when an epoch reaches it. :func:`mss_reference` and
+:func:`classic_raim_reference` are the plain-numpy implementations they replaced, kept as
+the oracle of the agreement tests (alarms, statuses and verdicts identical, numbers to
+1e-6 relative) and as the baseline of ``tests/benchmarks/bench_mss.py``; the fast kernels
+also hand them the few epochs whose singular-geometry verdict is too close to call.
+
 References
 ----------
 .. [1] Chen W., Yang Z., Gu S., Wang Y., barometric-altimeter-aided aircraft autonomous
@@ -108,6 +118,10 @@ class MssResult:
     pair_dx_m : (B..., P, n) the solution without pair ``p`` (NaN where not tested).
     ident_pair_unique, ident_pair_rank : (B...) int, index into ``pairs`` of the unique
         passing pair / of the best-ranked pair when at least one passes; -1 otherwise.
+
+    When no epoch of the batch reached the second level, :func:`mss` returns ``pair_pass``,
+    ``pair_score`` and ``pair_dx_m`` as read-only broadcast views of False / NaN (they would
+    otherwise be most of the result's memory: ``P (n + 1) + P`` values per epoch).
     """
 
     status: np.ndarray
@@ -241,6 +255,13 @@ def _prepare(h, z_m, w, is_sat):
     Returns ``batch``, ``h (B, M, n)``, ``z (B, M)``, ``w (B, M)`` and ``is_sat (M,)``, with
     rows that have a non-finite innovation or geometry switched off (weight 0).
     """
+    batch, h, z, w, is_sat = _flat_args(h, z_m, w, is_sat)
+    return (batch,) + _sanitize(h, z, w) + (is_sat,)
+
+
+def _flat_args(h, z_m, w, is_sat):
+    """:func:`_prepare` without the switching off: the flat arrays may be views of the
+    arguments (the fast kernels switch rows off block by block with :func:`_sanitize`)."""
     h = check_array("h", h, last=("M", "n"), finite=False)
     m_rows, n = h.shape[-2:]
     if n < 3:
@@ -254,10 +275,16 @@ def _prepare(h, z_m, w, is_sat):
     h = np.broadcast_to(h, batch + (m_rows, n)).reshape(-1, m_rows, n)
     z = np.broadcast_to(z, batch + (m_rows,)).reshape(-1, m_rows)
     w = np.broadcast_to(w, batch + (m_rows,)).reshape(-1, m_rows)
+    return batch, h, z, w, is_sat
+
+
+def _sanitize(h, z, w):
+    """Switch off (weight 0, zero innovation and geometry) rows with a non-finite
+    innovation or geometry; returns new arrays ``h, z, w``."""
     w = np.where(np.isfinite(z) & np.all(np.isfinite(h), axis=-1), w, 0.0)
     z = np.where(w > 0.0, z, 0.0)
     h = np.where(np.isfinite(h), h, 0.0)
-    return batch, h, z, w, is_sat
+    return h, z, w
 
 
 def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
@@ -289,6 +316,12 @@ def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
     ``z_m`` / ``w`` not ``(..., M)``, ``is_sat`` not ``(M,)``), negative or infinite weights
     or probabilities outside (0, 1).
 
+    See Also
+    --------
+    mss_reference : the plain-numpy reference path of the same equations; this function
+        returns the same alarms, statuses and identification verdicts and the same numbers
+        to round-off (``tests/test_mss.py`` compares them).
+
     Notes
     -----
     Equations (spec section 2): ``T_i = sqrt(lam_max(dP_i,EN)) Q^-1(p_fa / (2 m_sat))``,
@@ -301,17 +334,387 @@ def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
     budget of that group is split over its ``m_sat - 1`` tests, i.e. the threshold factor
     is ``Q^-1(p_fa / (2 (m_sat - 1)))`` (the spec says "the same rule"; this is our reading).
     A test whose sub-sub-solution is unobservable makes its candidate fail to pass (it
-    cannot be confirmed).
+    cannot be confirmed). With redundancy 1 every sub-sub-solution has fewer measurements
+    than states, so every candidate scores ``inf`` (exactly, not by round-off in ``1 -
+    l_kj``) and identification is unavailable.
 
     After a multiple-fault verdict, and when the redundancy is at least 3, identification
     goes one level deeper (spec section 2): for every pair ``(k, l)`` of used satellites the
     solution without both is tested against each solution without ``(k, l, j)``, with the
     factor ``Q^-1(p_fa / (2 (m_sat - 2)))``; see ``pair_*`` and ``ident_pair_*``. Deeper
     levels (three or more faults) are not implemented.
+
+    How it is computed (the reference path evaluates the same quantities the long way):
+    epochs are processed in blocks (:data:`BLOCK_ELEMENTS`) so that every work array stays
+    in cache and the cost per epoch does not grow with the batch; ``P0`` comes from a
+    Cholesky factor of the diagonally scaled normal matrix, whose determinant also decides
+    the singular-geometry test (an epoch whose determinant is not clearly above the
+    threshold of :func:`raimcore.lsq._well_conditioned` is handed to the reference path,
+    so the verdict is the reference's own); the sub-sub-solution tests use the rank-one
+    identity of the module docstring, ``max(d_kj / T_kj) = sqrt(w_j / (1 - l_kj)) |r_kj| /
+    k_fa``, written with the whitened hat matrix ``A = W^1/2 H P0 H^T W^1/2`` and
+    whitened residuals ``e = W^1/2 r``::
+
+        1 - l_kj = (1 - l_j) - A_kj^2 / (1 - l_k),   sqrt(w_j) r_kj = e_j + A_kj e_k / (1 - l_k)
+
+    so identification costs a dozen element-wise operations per (k, j) pair.
+    """
+    p_fa = check_probability("p_fa", p_fa)
+    p_md = check_probability("p_md", p_md)
+    batch, h, z, w, is_sat = _flat_args(h, z_m, w, is_sat)
+    n_b, m_rows, n = h.shape
+    k_fa_tab, k_sub_tab = _k_fa_tables(p_fa, m_rows)
+    k_md = _q_inv(p_md)
+    sat = _row_selector(is_sat)
+    o = _mss_outputs(n_b, m_rows, n)
+    redo, deep = [], []
+    step = _block_epochs(int(np.count_nonzero(is_sat)))
+    for start in range(0, n_b, step):
+        blk = slice(start, min(start + step, n_b))
+        rows, level2 = _mss_block(*_sanitize(h[blk], z[blk], w[blk]), is_sat, sat, p_fa,
+                                  k_fa_tab, k_sub_tab, k_md,
+                                  {key: a[blk] for key, a in o.items()})
+        redo.append(rows + start)
+        if level2 is not None:
+            deep.append((level2[0] + start,) + level2[1:])
+    o["status"] = _STATUS_NAMES[o["status"]]
+    o["ident_status"] = _IDENT_NAMES[o["ident_status"]]
+    redo = np.concatenate(redo) if redo else np.zeros(0, dtype=int)
+    ref = None
+    if redo.size:  # ill-conditioned or singular: the reference decides (see Notes)
+        ref = _mss_reference_flat(*_sanitize(h[redo], z[redo], w[redo]), is_sat, p_fa, p_md)
+        for key, a in o.items():
+            a[redo] = ref[key]
+    o.update(_pair_outputs(n_b, m_rows, n, deep, redo, ref))
+    o["pairs"] = _pair_indices(m_rows)
+    return _mss_result(o, batch)
+
+
+def _pair_outputs(n_b, m_rows, n, deep, redo, ref):
+    """The second-level fields of :func:`mss` from the few epochs that reached it.
+
+    ``deep``: per block, ``(rows, pass, score, dx)`` of its second-level epochs; ``redo``
+    and ``ref``: the epochs the reference decided and its fields. When no epoch of the
+    batch reached the second level, ``pair_pass``, ``pair_score`` and ``pair_dx_m`` are
+    read-only broadcast views of their fill values (False, NaN, NaN), which take no memory.
+    """
+    n_p = m_rows * (m_rows - 1) // 2
+    unique = np.full(n_b, -1, dtype=np.int64)
+    rank = np.full(n_b, -1, dtype=np.int64)
+    if not deep and (ref is None or not np.any(np.isfinite(ref["pair_score"]))):
+        return {"pair_pass": np.broadcast_to(False, (n_b, n_p)),
+                "pair_score": np.broadcast_to(np.nan, (n_b, n_p)),
+                "pair_dx_m": np.broadcast_to(np.nan, (n_b, n_p, n)),
+                "ident_pair_unique": unique, "ident_pair_rank": rank}
+    out = {"pair_pass": np.zeros((n_b, n_p), dtype=bool),
+           "pair_score": np.full((n_b, n_p), np.nan),
+           "pair_dx_m": np.full((n_b, n_p, n), np.nan),
+           "ident_pair_unique": unique, "ident_pair_rank": rank}
+    for rows, pair_pass, pair_score, pair_dx in deep:
+        out["pair_pass"][rows] = pair_pass
+        out["pair_score"][rows] = pair_score
+        out["pair_dx_m"][rows] = pair_dx
+        n_pass = pair_pass.sum(axis=-1)
+        unique[rows] = np.where(n_pass == 1, np.argmax(pair_pass, axis=-1), -1)
+        rank[rows] = np.where(n_pass >= 1, np.argmin(np.where(pair_pass, pair_score, np.inf),
+                                                      axis=-1), -1)
+    if ref is not None:
+        for key in out:
+            out[key][redo] = ref[key]
+    return out
+
+
+#: Work-array size of the fast kernels, in values: a block holds ``BLOCK_ELEMENTS // S^2``
+#: epochs (S satellite rows; at least 256, so the ~150 numpy calls of a block stay cheap,
+#: and at most 4096), so that its largest arrays, (block, S, S) floats of 512 KiB, stay in
+#: cache. Measured with ``tests/benchmarks/bench_mss.py`` on a 4 MiB-L2 Xeon: 10 satellites
+#: fastest at 2^16 values (655 epochs), 24 satellites at 227..455 epochs.
+BLOCK_ELEMENTS = 2**16
+
+
+def _block_epochs(n_rows):
+    """Epochs per block for ``n_rows`` satellite rows (see :data:`BLOCK_ELEMENTS`)."""
+    return int(np.clip(BLOCK_ELEMENTS // max(n_rows * n_rows, 1), 256, 4096))
+
+
+# An epoch whose scaled normal matrix has a Cholesky determinant above this is well
+# conditioned for the reference test too (det > 1e-6 in raimcore.lsq._well_conditioned;
+# the two determinants differ by ~1e-9 relative at worst there, the margin is 1e-3).
+_DET_SURE = 1e-6 * (1.0 + 1e-3)
+_STATUS_NAMES = np.array([STATUS_UNAVAILABLE, STATUS_NO_ISOLATION, STATUS_OK])
+_IDENT_NAMES = np.array([IDENT_NONE, IDENT_UNIQUE, IDENT_AMBIGUOUS, IDENT_MULTIPLE,
+                         IDENT_UNAVAILABLE])
+
+
+@lru_cache(maxsize=64)
+def _k_fa_tables(p_fa, m_rows):
+    """``Q^-1(p_fa / (2 max(m, 1)))`` and ``Q^-1(p_fa / (2 max(m - 1, 1)))`` for m = 0..M.
+
+    Indexed by ``m_sat``; the same element-wise values as evaluating them per epoch.
+    Cached (read-only arrays): a scipy call costs as much as a few hundred epochs.
+    """
+    m = np.arange(m_rows + 1)
+    tables = (stats.norm.isf(p_fa / (2.0 * np.maximum(m, 1))),
+              stats.norm.isf(p_fa / (2.0 * np.maximum(m - 1, 1))))
+    for t in tables:
+        t.flags.writeable = False
+    return tables
+
+
+@lru_cache(maxsize=64)
+def _q_inv(p):
+    """``Q^-1(p)`` (``scipy.stats.norm.isf``), cached."""
+    return stats.norm.isf(p)
+
+
+def _row_selector(is_sat):
+    """The satellite rows as a slice when they are contiguous (no copy), else indices."""
+    idx = np.flatnonzero(is_sat)
+    if idx.size and np.all(np.diff(idx) == 1):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
+def _pair_indices(m_rows):
+    """All row pairs ``(k, l)``, ``k < l``, of the second identification level, (P, 2)."""
+    k_idx, l_idx = np.triu_indices(m_rows, k=1)
+    return np.stack([k_idx, l_idx], axis=-1)
+
+
+# Value of each field of :func:`mss` at an unavailable epoch (status/ident codes: 0).
+_MSS_FILL = {"status": 0, "alarm": False, "ident_status": 0, "ident_pass": False,
+             "ident_unique": -1, "ident_rank": -1}
+
+
+def _mss_outputs(n_b, m_rows, n):
+    """Flat, uninitialised output arrays of :func:`mss` (every block writes all of its
+    slice: see :data:`_MSS_FILL`); the second-level fields come from :func:`_pair_outputs`.
+    """
+    shapes = {"status": (), "dx0_m": (n,), "p0_m2": (n, n), "dx_sep_m": (m_rows, n),
+              "dp_h_lam_m2": (m_rows,), "dp_u_m2": (m_rows,), "p_h_lam_m2": (m_rows,),
+              "p_u_m2": (m_rows,), "d_h_m": (m_rows,), "t_h_m": (m_rows,), "d_v_m": (m_rows,),
+              "t_v_m": (m_rows,), "ratio": (m_rows,), "alarm": (), "ident_status": (),
+              "ident_pass": (m_rows,), "ident_score": (m_rows,), "ident_unique": (),
+              "ident_rank": (), "hpl_m": (), "vpl_m": (), "k_fa": (), "m_sat": (),
+              "n_states": ()}
+    dtypes = {"status": np.int8, "ident_status": np.int8, "alarm": bool, "ident_pass": bool,
+              "ident_unique": np.int64, "ident_rank": np.int64, "m_sat": np.int64,
+              "n_states": np.int64}
+    return {key: np.empty((n_b,) + shape, dtype=dtypes.get(key, float))
+            for key, shape in shapes.items()}
+
+
+def _mss_result(o, batch):
+    """:class:`MssResult` from the flat arrays of a batch, reshaped to ``batch``."""
+    fields = {key: (a if key == "pairs" else a.reshape(batch + a.shape[1:]))
+              for key, a in o.items()}
+    return MssResult(**fields)
+
+
+def _main_covariance(h, w):
+    """``P0 = (H^T W H)^-1`` of a block by a Cholesky factor of the scaled normal matrix.
+
+    Parameters
+    ----------
+    h : (B, M, n) geometry rows, finite.
+    w : (B, M) weights, finite, >= 0.
+
+    Returns
+    -------
+    p0 : (B, n, n) covariance, with the states no used row touches pinned and given no
+        variance, as :func:`_normal_inverse` does; identity-based garbage (finite) where
+        ``sure`` is False.
+    n_states : (B,) int, the states that some used row touches.
+    sure : (B,) bool, the determinant of the scaled normal matrix ``D^-1/2 N D^-1/2`` is
+        above :data:`_DET_SURE`, so the reference test calls it well conditioned. False
+        does not mean singular: the caller hands such epochs to the reference path.
+
+    Notes
+    -----
+    The factor is computed entry by entry over the block (``n`` is 4..7), which for these
+    sizes is far cheaper than batched LAPACK calls; ``det = prod(diag(L))^2``.
+    """
+    n_b, _, n = h.shape
+    # A state is active when some used row touches it: a sum of non-negative terms that is
+    # positive exactly when one of them is (the same test as (h != 0) & (w > 0), faster).
+    active = np.matmul((w > 0.0).astype(float)[:, None, :], np.abs(h))[:, 0] > 0.0  # (B, n)
+    a = np.matmul(h.transpose(0, 2, 1), h * w[..., None])  # H^T W H
+    diag = np.arange(n)
+    a[:, diag, diag] += ~active  # absent states decoupled with a unit diagonal
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        d = np.sqrt(a[:, diag, diag])
+        st = (a / (d[:, :, None] * d[:, None, :])).transpose(1, 2, 0)  # unit diagonal
+        low = {}
+        inv = []
+        det = np.ones(n_b)
+        for j in range(n):
+            acc = st[j, j] - sum(low[j, k] ** 2 for k in range(j))
+            det = det * acc
+            inv.append(1.0 / np.sqrt(acc))
+            for i in range(j + 1, n):
+                low[i, j] = (st[i, j] - sum(low[i, k] * low[j, k] for k in range(j))) * inv[j]
+        # L^-1 (lower triangular), row by row.
+        li = np.zeros((n, n, n_b))
+        for i in range(n):
+            li[i, i] = inv[i]
+            for j in range(i):
+                li[i, j] = -inv[i] * sum(low[i, k] * li[k, j] for k in range(j, i))
+    sure = det > _DET_SURE  # NaN (failed factor) is not sure
+    if not sure.all():
+        li[:, :, ~sure] = np.eye(n)[:, :, None]
+        d = np.where(sure[:, None], d, 1.0)
+    lib = li.transpose(2, 0, 1)  # (B, n, n)
+    s_inv = np.matmul(lib.transpose(0, 2, 1), lib)  # (D^-1/2 N D^-1/2)^-1 = L^-T L^-1
+    scale = active / d
+    p0 = s_inv * scale[:, :, None] * scale[:, None, :]
+    return p0, active.sum(axis=-1), sure
+
+
+def _mss_block(h, z, w, is_sat, sat, p_fa, k_fa_tab, k_sub_tab, k_md, o):
+    """Fast :func:`mss` on one block of epochs, written into the views ``o``.
+
+    Returns the block rows that the reference path must decide (see :func:`mss` Notes)
+    and, if some epochs reached the second identification level, ``(rows, pass, score,
+    dx)`` of those epochs (else None).
+    """
+    p0, n_states, sure = _main_covariance(h, w)
+    v = np.matmul(h, p0)  # v_i = P0 h_i, (B, M, n)
+    dx0 = np.matmul((w * z)[:, None, :], v)[:, 0]  # X0 = P0 H^T W z
+    r = z - np.matmul(h, dx0[..., None])[..., 0]  # main residuals
+    used = w > 0.0
+    cand = used & is_sat[None, :]
+    m_sat = cand.sum(axis=-1)
+    redundancy = used.sum(axis=-1) - n_states
+    valid = sure & (redundancy >= 1)
+    redo = np.flatnonzero(~sure & (redundancy >= 1))
+    o["m_sat"][:] = m_sat
+    o["n_states"][:] = n_states
+    k_fa = k_fa_tab[m_sat]
+    o["k_fa"][:] = k_fa
+    if not valid.any():
+        for key, a in o.items():
+            if key not in ("m_sat", "n_states", "k_fa"):
+                a[...] = _MSS_FILL.get(key, np.nan)
+        return redo, None
+    o["dx0_m"][:] = np.where(valid[:, None], dx0, np.nan)
+    o["p0_m2"][:] = np.where(valid[:, None, None], p0, np.nan)
+
+    # Whitened hat matrix of the satellite rows, A = W^1/2 H P0 H^T W^1/2 (symmetric). Its
+    # diagonal is the leverage, but l_i is taken from the row products as in the reference:
+    # where 1 - l_i is tiny (a nearly unobservable sub-solution) both then carry the same
+    # round-off, which 1 / (1 - l_i) amplifies.
+    sq_w = np.sqrt(w[:, sat])
+    hs_t = np.ascontiguousarray(h[:, sat].transpose(0, 2, 1))  # (B, n, S)
+    hs_t *= sq_w[:, None, :]
+    hat = np.matmul(hs_t.transpose(0, 2, 1), np.matmul(p0, hs_t))
+    n_s = hat.shape[-1]
+    one_m_lev = 1.0 - w * np.sum(h * v, axis=-1)  # 1 - l_i
+    om = one_m_lev[:, sat]
+
+    # Sub-solutions by rank-one downdate (Sherman-Morrison), as in the module docstring.
+    sub_ok = cand & (one_m_lev > _LEVERAGE_TOL) & valid[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain = np.where(sub_ok, w / one_m_lev, np.nan)  # w_i / (1 - l_i)
+    dx_sep = (gain * r)[..., None] * v  # dX_i = X0 - X_i
+    v_e, v_n, v_u = v[..., 0], v[..., 1], v[..., 2]
+    dp_h_lam = gain * (v_e * v_e + v_n * v_n)  # dP_i = g v v^T has rank one
+    dp_u = gain * (v_u * v_u)
+    p_h_lam = _lam_max_2x2(p0[:, None, 0, 0] + gain * (v_e * v_e),
+                           p0[:, None, 0, 1] + gain * (v_e * v_n),
+                           p0[:, None, 1, 1] + gain * (v_n * v_n))
+    p_u = p0[:, None, 2, 2] + dp_u
+    d_h = np.sqrt(dx_sep[..., 0] ** 2 + dx_sep[..., 1] ** 2)
+    d_v = np.abs(dx_sep[..., 2])
+    t_h = np.sqrt(dp_h_lam) * k_fa[:, None]
+    t_v = np.sqrt(dp_u) * k_fa[:, None]
+    ratio = np.fmax(_safe_ratio(d_h, t_h), _safe_ratio(d_v, t_v))
+    alarm = valid & np.any(sub_ok & (ratio > 1.0), axis=-1)
+    for key, val in (("dx_sep_m", dx_sep), ("dp_h_lam_m2", dp_h_lam), ("dp_u_m2", dp_u),
+                     ("p_h_lam_m2", p_h_lam), ("p_u_m2", p_u), ("d_h_m", d_h),
+                     ("t_h_m", t_h), ("d_v_m", d_v), ("t_v_m", t_v), ("ratio", ratio)):
+        o[key][:] = val  # NaN wherever the sub-solution is not observable (gain NaN)
+    o["alarm"][:] = alarm
+
+    # Protection levels (spec section 2), as in the reference.
+    pl_ok = valid & np.all(sub_ok | ~cand, axis=-1) & (m_sat > 0)
+    hpl = np.max(np.where(sub_ok, t_h + np.sqrt(p_h_lam) * k_md, -np.inf), axis=-1)
+    vpl = np.max(np.where(sub_ok, t_v + np.sqrt(p_u) * k_md, -np.inf), axis=-1)
+    o["hpl_m"][:] = np.where(pl_ok, hpl, np.nan)
+    o["vpl_m"][:] = np.where(pl_ok, vpl, np.nan)
+
+    # Identification: every (k, j) sub-sub-solution test at once, over satellite rows only,
+    # laid out (j, B, k) so that the reductions over j run over the first axis (A is
+    # symmetric, so A_kj is read as A_jk).
+    e = sq_w * r[:, sat]  # whitened residuals
+    ok_s = sub_ok[:, sat]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_om = np.where(ok_s, 1.0 / om, 0.0)
+    a = np.ascontiguousarray(hat.transpose(1, 0, 2))  # (j, B, k)
+    num = a * (e * inv_om)[None]
+    num += e.T[:, :, None]  # sqrt(w_j) r_kj
+    num *= num
+    a *= a
+    a *= inv_om[None]
+    den = np.subtract(om.T[:, :, None], a, out=a)  # 1 - l_kj
+    den[np.arange(n_s), :, np.arange(n_s)] = 1.0  # j = k is not a test
+    num[np.arange(n_s), :, np.arange(n_s)] = 0.0
+    bad = np.any(den <= _LEVERAGE_TOL, axis=0)  # (B, k): some sub-sub-solution unobservable
+    bad |= (redundancy < 2)[:, None]  # all of them are (see the reference)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        num /= den
+        worst = np.sqrt(num.max(axis=0, initial=0.0)) / k_sub_tab[m_sat][:, None]
+    has_pairs = ok_s & (m_sat >= 2)[:, None]
+    score_s = np.where(has_pairs, np.where(bad, np.inf, worst), np.nan)
+    score = np.full(ratio.shape, np.nan)
+    score[:, sat] = score_s
+    passed = score <= 1.0  # False for NaN
+    can_ident = (valid & (redundancy >= 2) & np.all(~cand | (sub_ok & (m_sat >= 2)[:, None]),
+                                                    axis=-1)
+                 & ~np.any(ok_s & bad, axis=-1))
+    n_pass = passed.sum(axis=-1)
+    ident = np.zeros(len(h), dtype=np.int8)  # codes: indices into _IDENT_NAMES
+    ident[alarm & ~can_ident] = 4
+    ident[alarm & can_ident & (n_pass == 1)] = 1
+    ident[alarm & can_ident & (n_pass > 1)] = 2
+    ident[alarm & can_ident & (n_pass == 0)] = 3
+    o["ident_status"][:] = ident
+    o["ident_pass"][:] = passed
+    o["ident_score"][:] = score
+    o["ident_unique"][:] = np.where(ident == 1, np.argmax(passed, axis=-1), -1)
+    ranked = np.argmin(np.where(np.isnan(score), np.inf, score), axis=-1)
+    o["ident_rank"][:] = np.where((ident == 1) | (ident == 2), ranked, -1)
+    o["status"][:] = np.where(valid, np.where(can_ident, 2, 1), 0)
+
+    deeper = np.flatnonzero((ident == 3) & (redundancy >= 3))
+    if deeper.size == 0:
+        return redo, None
+    _, pair_pass, pair_score, pair_dx = _pair_level(
+        h[deeper], z[deeper], w[deeper], cand[deeper], m_sat[deeper],
+        np.ones(deeper.size, dtype=bool), p_fa)
+    return redo, (deeper, pair_pass, pair_score, pair_dx)
+
+
+def mss_reference(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
+    """Reference path of :func:`mss`: the same arguments, equations and result.
+
+    The plain-numpy implementation that :func:`mss` replaced: explicit batched inverses
+    and determinants, every work array over the whole batch, sub-sub-solution separations
+    and thresholds evaluated component by component as the spec writes them. It is kept
+    as the oracle of the agreement tests and as the baseline of
+    ``tests/benchmarks/bench_mss.py``, and :func:`mss` hands it the epochs whose
+    conditioning is too close to the singular-geometry threshold to decide otherwise.
+
+    Parameters, Returns and Raises as :func:`mss`.
     """
     p_fa = check_probability("p_fa", p_fa)
     p_md = check_probability("p_md", p_md)
     batch, h, z, w, is_sat = _prepare(h, z_m, w, is_sat)
+    return _mss_result(_mss_reference_flat(h, z, w, is_sat, p_fa, p_md), batch)
+
+
+def _mss_reference_flat(h, z, w, is_sat, p_fa, p_md) -> dict:
+    """:func:`mss_reference` on prepared flat arrays (see :func:`_prepare`); a dict of the
+    :class:`MssResult` fields with batch axis ``B``."""
     m_rows = h.shape[-2]
 
     p0, n_states, geom_ok = _normal_inverse(h, w)
@@ -367,7 +770,9 @@ def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
     lev_kj = lev[:, None, :] + w[:, None, :] * g[:, :, None] * c**2
     r_kj = r[:, None, :] + (g * r)[:, :, None] * c
     pair = sub_ok[:, :, None] & cand[:, None, :] & ~np.eye(m_rows, dtype=bool)[None]
-    pair_ok = pair & (1.0 - lev_kj > _LEVERAGE_TOL)
+    # With redundancy 1 every sub-sub-solution has fewer measurements than states: exactly
+    # unobservable (1 - l_kj = 0), whatever round-off says.
+    pair_ok = pair & (1.0 - lev_kj > _LEVERAGE_TOL) & (redundancy >= 2)[:, None, None]
     with np.errstate(divide="ignore", invalid="ignore"):
         gain_kj = np.where(pair_ok, w[:, None, :] / (1.0 - lev_kj), np.nan)
     sep_kj = (gain_kj * r_kj)[..., None] * u_kj  # X_k - X_kj
@@ -410,42 +815,39 @@ def mss(h, z_m, w, is_sat, p_fa: float, p_md: float) -> MssResult:
     pair_rank = np.where(n_pair_pass >= 1, np.argmin(
         np.where(pair_pass, pair_score, np.inf), axis=-1), -1)
 
-    def out(a):
-        return np.asarray(a).reshape(batch + a.shape[1:])
-
     nan_rows = ~sub_ok
-    return MssResult(
-        status=out(status.astype(str)),
-        dx0_m=out(np.where(valid[:, None], dx0, np.nan)),
-        p0_m2=out(np.where(valid[:, None, None], p0, np.nan)),
-        dx_sep_m=out(np.where(nan_rows[..., None], np.nan, dx_sep)),
-        dp_h_lam_m2=out(np.where(nan_rows, np.nan, dp_h_lam)),
-        dp_u_m2=out(np.where(nan_rows, np.nan, dp_u)),
-        p_h_lam_m2=out(np.where(nan_rows, np.nan, p_h_lam)),
-        p_u_m2=out(np.where(nan_rows, np.nan, p_u)),
-        d_h_m=out(np.where(nan_rows, np.nan, d_h)),
-        t_h_m=out(np.where(nan_rows, np.nan, t_h)),
-        d_v_m=out(np.where(nan_rows, np.nan, d_v)),
-        t_v_m=out(np.where(nan_rows, np.nan, t_v)),
-        ratio=out(np.where(nan_rows, np.nan, ratio)),
-        alarm=out(alarm),
-        ident_status=out(ident_status.astype(str)),
-        ident_pass=out(passed),
-        ident_score=out(score),
-        ident_unique=out(ident_unique),
-        ident_rank=out(ident_rank),
-        hpl_m=out(hpl),
-        vpl_m=out(vpl),
-        k_fa=out(k_fa),
-        m_sat=out(m_sat),
-        n_states=out(n_states),
-        pairs=pairs,
-        pair_pass=out(pair_pass),
-        pair_score=out(pair_score),
-        pair_dx_m=out(pair_dx),
-        ident_pair_unique=out(pair_unique),
-        ident_pair_rank=out(pair_rank),
-    )
+    return {
+        "status": status.astype(str),
+        "dx0_m": np.where(valid[:, None], dx0, np.nan),
+        "p0_m2": np.where(valid[:, None, None], p0, np.nan),
+        "dx_sep_m": np.where(nan_rows[..., None], np.nan, dx_sep),
+        "dp_h_lam_m2": np.where(nan_rows, np.nan, dp_h_lam),
+        "dp_u_m2": np.where(nan_rows, np.nan, dp_u),
+        "p_h_lam_m2": np.where(nan_rows, np.nan, p_h_lam),
+        "p_u_m2": np.where(nan_rows, np.nan, p_u),
+        "d_h_m": np.where(nan_rows, np.nan, d_h),
+        "t_h_m": np.where(nan_rows, np.nan, t_h),
+        "d_v_m": np.where(nan_rows, np.nan, d_v),
+        "t_v_m": np.where(nan_rows, np.nan, t_v),
+        "ratio": np.where(nan_rows, np.nan, ratio),
+        "alarm": alarm,
+        "ident_status": ident_status.astype(str),
+        "ident_pass": passed,
+        "ident_score": score,
+        "ident_unique": ident_unique,
+        "ident_rank": ident_rank,
+        "hpl_m": hpl,
+        "vpl_m": vpl,
+        "k_fa": k_fa,
+        "m_sat": m_sat,
+        "n_states": n_states,
+        "pairs": pairs,
+        "pair_pass": pair_pass,
+        "pair_score": pair_score,
+        "pair_dx_m": pair_dx,
+        "ident_pair_unique": pair_unique,
+        "ident_pair_rank": pair_rank,
+    }
 
 
 def _pair_level(h, z, w, cand, m_sat, todo, p_fa):
@@ -547,6 +949,12 @@ def classic_raim(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
     ------
     ValueError as :func:`mss`.
 
+    See Also
+    --------
+    classic_raim_reference : the plain-numpy reference path (same results to round-off);
+        this function computes ``P0`` and the singular-geometry test as :func:`mss` does,
+        block by block.
+
     Notes
     -----
     Test statistic ``SSE = r^T W r ~ chi2(m - n)`` without fault, threshold
@@ -563,7 +971,94 @@ def classic_raim(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
     """
     p_fa = check_probability("p_fa", p_fa)
     p_md = check_probability("p_md", p_md)
+    batch, h, z, w, is_sat = _flat_args(h, z_m, w, is_sat)
+    n_b, m_rows, _ = h.shape
+    o = {"status": np.zeros(n_b, dtype=np.int8), "sse": np.full(n_b, np.nan),
+         "threshold": np.full(n_b, np.nan), "alarm": np.zeros(n_b, dtype=bool),
+         "dof": np.zeros(n_b, dtype=np.int64), "lam_det": np.full(n_b, np.nan),
+         "hslope_m": np.full((n_b, m_rows), np.nan), "vslope_m": np.full((n_b, m_rows), np.nan),
+         "hpl_m": np.full(n_b, np.nan), "vpl_m": np.full(n_b, np.nan)}
+    redo = []
+    step = _block_epochs(m_rows)
+    for start in range(0, n_b, step):
+        blk = slice(start, min(start + step, n_b))
+        rows = _classic_block(*_sanitize(h[blk], z[blk], w[blk]), is_sat, p_fa, p_md,
+                              {key: a[blk] for key, a in o.items()})
+        redo.append(rows + start)
+    o["status"] = _STATUS_NAMES[o["status"]]
+    redo = np.concatenate(redo) if redo else np.zeros(0, dtype=int)
+    if redo.size:  # ill-conditioned or singular: the reference decides
+        ref = _classic_reference_flat(*_sanitize(h[redo], z[redo], w[redo]), is_sat, p_fa,
+                                      p_md)
+        for key, a in o.items():
+            a[redo] = ref[key]
+    return ClassicResult(**{key: a.reshape(batch + a.shape[1:]) for key, a in o.items()})
+
+
+@lru_cache(maxsize=256)
+def _chi2_threshold(dof: int, p_fa: float) -> float:
+    """``chi2.isf(p_fa, dof)``, cached (the same value as the element-wise call)."""
+    return float(stats.chi2.isf(p_fa, dof))
+
+
+def _classic_block(h, z, w, is_sat, p_fa, p_md, o):
+    """Fast :func:`classic_raim` on one block, written into the views ``o``.
+
+    Returns the block rows that the reference path must decide.
+    """
+    p0, n_states, sure = _main_covariance(h, w)
+    v = np.matmul(h, p0)
+    dx0 = np.matmul((w * z)[:, None, :], v)[:, 0]
+    r = z - np.matmul(h, dx0[..., None])[..., 0]
+    used = w > 0.0
+    cand = used & is_sat[None, :]
+    dof = used.sum(axis=-1) - n_states
+    valid = sure & (dof >= 1)
+    o["dof"][:] = dof
+    redo = np.flatnonzero(~sure & (dof >= 1))
+    if not valid.any():
+        return redo
+    o["sse"][:] = np.where(valid, np.sum(w * r * r, axis=-1), np.nan)
+    dof_safe = np.maximum(dof, 1)
+    uniq = np.unique(dof_safe)
+    pos = np.searchsorted(uniq, dof_safe)
+    thr = np.array([_chi2_threshold(int(d), p_fa) for d in uniq])[pos]
+    lam_det = np.array([_lambda_detect(int(d), p_fa, p_md) for d in uniq])[pos]
+    o["threshold"][:] = np.where(valid, thr, np.nan)
+    o["lam_det"][:] = np.where(valid, lam_det, np.nan)
+    o["alarm"][:] = valid & (o["sse"] > thr)
+
+    one_m_lev = 1.0 - w * np.sum(h * v, axis=-1)
+    slope_ok = cand & (one_m_lev > _LEVERAGE_TOL) & valid[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(slope_ok, np.sqrt(w / one_m_lev), np.nan)  # S[:, i] = w_i v_i
+    hslope = scale * np.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2)
+    vslope = scale * np.abs(v[..., 2])
+    o["hslope_m"][:] = hslope
+    o["vslope_m"][:] = vslope
+    pl_ok = valid & np.all(slope_ok | ~cand, axis=-1) & (cand.sum(axis=-1) > 0)
+    sq_lam = np.sqrt(lam_det)
+    o["hpl_m"][:] = np.where(pl_ok, np.max(np.where(slope_ok, hslope, -np.inf), axis=-1),
+                             np.nan) * sq_lam
+    o["vpl_m"][:] = np.where(pl_ok, np.max(np.where(slope_ok, vslope, -np.inf), axis=-1),
+                             np.nan) * sq_lam
+    o["status"][:] = np.where(valid, np.where(dof >= 2, 2, 1), 0)
+    return redo
+
+
+def classic_raim_reference(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
+    """Reference path of :func:`classic_raim` (explicit batched inverse over the whole
+    batch); the same arguments, result and errors. Kept for the agreement tests and the
+    benchmark baseline."""
+    p_fa = check_probability("p_fa", p_fa)
+    p_md = check_probability("p_md", p_md)
     batch, h, z, w, is_sat = _prepare(h, z_m, w, is_sat)
+    o = _classic_reference_flat(h, z, w, is_sat, p_fa, p_md)
+    return ClassicResult(**{key: a.reshape(batch + a.shape[1:]) for key, a in o.items()})
+
+
+def _classic_reference_flat(h, z, w, is_sat, p_fa, p_md) -> dict:
+    """:func:`classic_raim_reference` on prepared flat arrays; a dict of the fields."""
 
     p0, n_states, geom_ok = _normal_inverse(h, w)
     dx0 = np.einsum("bij,bmj,bm,bm->bi", p0, h, w, z)
@@ -600,21 +1095,9 @@ def classic_raim(h, z_m, w, is_sat, p_fa: float, p_md: float) -> ClassicResult:
     status[valid] = STATUS_NO_ISOLATION
     status[valid & (dof >= 2)] = STATUS_OK
 
-    def out(a):
-        return np.asarray(a).reshape(batch + a.shape[1:])
-
-    return ClassicResult(
-        status=out(status.astype(str)),
-        sse=out(sse),
-        threshold=out(threshold),
-        alarm=out(alarm),
-        dof=out(dof),
-        lam_det=out(lam_det),
-        hslope_m=out(hslope),
-        vslope_m=out(vslope),
-        hpl_m=out(hpl),
-        vpl_m=out(vpl),
-    )
+    return {"status": status.astype(str), "sse": sse, "threshold": threshold, "alarm": alarm,
+            "dof": dof, "lam_det": lam_det, "hslope_m": hslope, "vslope_m": vslope,
+            "hpl_m": hpl, "vpl_m": vpl}
 
 
 def availability(hpl_m, vpl_m, hal_m: float, val_m: float) -> np.ndarray:
