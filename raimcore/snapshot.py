@@ -3,8 +3,17 @@
 One call runs a snapshot FDE algorithm on every epoch of plain arrays (no scenario, no
 :class:`~raimcore.measure.Measurements`): satellite positions ``(T, n, 3)`` in the
 receive-time ECEF frame, pseudoranges ``(T, n)`` with NaN for a satellite not tracked.
-The scenario engine's ``parity`` algorithm (:mod:`raimcore.algorithms.parity_fde`) runs
-the same kernel, :func:`_parity_fde`.
+Every algorithm runs the implementation the scenario engine runs (one implementation):
+
+* ``parity``: the kernel :func:`_parity_fde` below, which the registered ``parity``
+  (:mod:`raimcore.algorithms.parity_fde`) calls;
+* ``mss``, ``gf``, ``rs``, ``qv``: the registered algorithm itself, through the engine's
+  :func:`raimcore.pipeline.run_algorithm`, on a :class:`~raimcore.measure.Measurements`
+  made of the arrays (:func:`_measurements`);
+* ``araim``: the kernel :func:`raimcore.araim.mhss` on the geometry and residuals of the
+  all-in-view weighted least squares, as :mod:`raimcore.algorithms.araim` does, with the
+  nominal sigmas and ISM values given as arrays (that adapter derives them from the
+  elevation and the scenario's ISM, which arrays do not have).
 
 The parity kernel (seed 000; Liao & Huang 1996) makes exactly the decisions of the plain
 numpy path it replaces, :func:`_parity_fde_reference` (batched :func:`raimcore.lsq.wls`,
@@ -34,7 +43,9 @@ kept as the reference that ``tests/test_fde.py`` compares it with. It is faster 
 * epochs are processed in cache-sized chunks with the epoch axis last (contiguous), so time
   and memory per epoch do not grow with the number of epochs.
 
-Epochs are independent: an epoch's result does not depend on the rest of the batch.
+Epochs are independent: an epoch's result does not depend on the rest of the batch, except
+with ``rs``, whose random draws are keyed by the rank of the epoch's set of tracked
+satellites among the batch's sets (as in the scenario engine, see :func:`fde`).
 """
 
 from __future__ import annotations
@@ -49,18 +60,46 @@ from ._validate import check_array, check_choice, check_int, check_probability
 from .algorithms.base import STATUS_NO_ISOLATION, STATUS_OK, STATUS_UNAVAILABLE
 from .lsq import RCOND_MIN, _clock_columns, _geometry_rows, _normal_solve
 
-__all__ = ["fde", "FdeResult", "FDE_ALGORITHMS", "FDE_OUTPUTS"]
+__all__ = ["fde", "FdeResult", "FDE_ALGORITHMS", "FDE_OUTPUTS", "FDE_ALGORITHM_OUTPUTS"]
 
-#: Algorithms :func:`fde` runs (the registry's ``mss``, ``gf``, ``rs``, ``qv`` and
-#: ``araim`` are not wired to the array entry point yet).
-FDE_ALGORITHMS = ("parity",)
-#: Optional outputs (``outputs=`` option) and what they are; see :class:`FdeResult`.
+#: Algorithms :func:`fde` runs: the registry's snapshot algorithms (the filters ``ekf``,
+#: ``ekf-nis``, ``pf-llr`` carry state from epoch to epoch and are not snapshot FDE).
+FDE_ALGORITHMS = ("parity", "mss", "gf", "rs", "qv", "araim")
+#: Optional outputs of ``parity`` (``outputs=`` option) and what they are.
 FDE_OUTPUTS = {
     "isolation": "(T, n) DF_I_j of each used satellite before exclusion (NaN elsewhere)",
     "fault_size_m": "(T, n) ML bias estimate of each used satellite (m)",
     "isolability": "(T, n) largest |cos| between a satellite's parity column and another's",
     "hpl_m": "(T,) classic slope-based horizontal protection level (m), Brown 1992",
     "vpl_m": "(T,) classic slope-based vertical protection level (m), Brown 1992",
+}
+#: Optional outputs of every algorithm (``outputs=`` option), as the scenario engine's
+#: result columns of the same name (``(T,)``) or per-satellite arrays (``(T, n)``).
+FDE_ALGORITHM_OUTPUTS = {
+    "parity": FDE_OUTPUTS,
+    "mss": {
+        "hpl_m": "(T,) MSS horizontal protection level (m), seed 001 (no baro)",
+        "vpl_m": "(T,) MSS vertical protection level (m), seed 001 (no baro)",
+        "hpl_classic_m": "(T,) classic slope-based HPL of the chi-square detector (m)",
+        "vpl_classic_m": "(T,) classic slope-based VPL of the chi-square detector (m)",
+        "sep_ratio": "(T, n) separation over threshold of each sub-solution (NaN unused)",
+    },
+    "gf": {
+        "mf": "(T, n) fused evidence m(F) that each satellite is faulty (NaN unused)",
+        "mf_threshold": "(T,) isolation threshold on m(F): mean m(F) + gf_margin",
+    },
+    "rs": {"rs_isolated": "(T, n) 1 where random search isolates the satellite, else 0"},
+    "qv": {
+        "qv_score": "(T, n) confidence index of each satellite (NaN unused)",
+        "qv_threshold": "(T,) isolation threshold on it: mean index + qv_margin",
+    },
+    "araim": {
+        "hpl_m": "(T,) ARAIM horizontal protection level (m), ADD v4.2",
+        "vpl_m": "(T,) ARAIM vertical protection level (m), ADD v4.2",
+        "emt_m": "(T,) effective monitor threshold (m)",
+        "sigma_acc_v_m": "(T,) vertical accuracy sigma of the all-in-view solution (m; the "
+                         "engine's column sigma_acc_m)",
+    },
 }
 #: Epochs per chunk by default. The working set is about 190 B per satellite and epoch
 #: (1.9 kB per epoch with 10 satellites), so a chunk stays near the L2 cache; 1024 to 3072
@@ -73,13 +112,39 @@ _SJJ_MIN = 1e-9  # raimcore.algorithms.parity._SJJ_MIN: no redundancy for that s
 _DET_SURE = 1e-6  # raimcore.lsq._well_conditioned: det > 1e-6 decides "well conditioned"
 _R_EARTH_M = 6.371e6  # picks the Bancroft root (mean Earth radius, IUGG)
 _DUMMY_M = 3.0e7  # position and range given to unused satellites (never a zero range)
+_P_FA = 1e-3  # default false-alarm probability of fde()
+_NO_LIMIT_M = 1.0e9  # alert limits handed to the engine: no output of fde() depends on them
+_STATUS_DTYPE = np.array([STATUS_OK, STATUS_NO_ISOLATION, STATUS_UNAVAILABLE]).dtype
 
-# Options of fde(): name -> (default, help). Declared once; _options() checks against it.
+# Options of fde(): name -> (default, help, algorithms it applies to). Declared once;
+# _options() checks against it. The algorithm-specific options of the registered
+# algorithms (mss_ident_rule, gf_groups, ...) are declared by their own option keys
+# (raimcore.algorithms.<module>.SPEC.options) and checked by them (_ENGINE_OPTIONS).
+_ALL = FDE_ALGORITHMS
 _OPTIONS = {
-    "outputs": ((), "names of optional outputs to compute, from FDE_OUTPUTS"),
-    "p_md": (1e-3, "missed-detection probability of the protection levels, in (0, 1)"),
-    "chunk_epochs": (CHUNK_EPOCHS, "epochs processed per chunk (memory is flat in T)"),
-    "path": ("fast", "'fast' (the kernel) or 'reference' (the plain numpy path it replaces)"),
+    "outputs": ((), "names of optional outputs to compute, from FDE_ALGORITHM_OUTPUTS", _ALL),
+    "p_md": (1e-3, "missed-detection probability of the protection levels, in (0, 1)",
+             ("parity", "mss")),
+    "chunk_epochs": (CHUNK_EPOCHS, "epochs processed per chunk (memory is flat in T)",
+                     ("parity",)),
+    "path": ("fast", "'fast' (the kernel) or 'reference' (the plain numpy path it replaces)",
+             ("parity",)),
+    "seed": (0, "integer seed of the random draws (a scenario's seed gives its draws)",
+             ("rs",)),
+    "sigma_acc_m": (None, "scalar or (T, n) accuracy 1-sigma (m; default sigma_m)",
+                    ("araim",)),
+    "b_nom_m": (0.0, "scalar, (n,) or (T, n) nominal integrity bias b_nom (m)", ("araim",)),
+    "b_cont_m": (0.0, "scalar, (n,) or (T, n) continuity bias b_cont (m)", ("araim",)),
+    "p_sat": (1e-5, "scalar, (n,) or (T, n) prior satellite fault probability", ("araim",)),
+    "p_const": (1e-8, "scalar or (q,) prior constellation fault probability per system",
+                ("araim",)),
+}
+# Options of the registered algorithms that fde() passes on (araim: emt_max_m and
+# sigma_acc_max_m only set LPV-200 availability, t_exp_s needs mean fault durations).
+_ENGINE_OPTIONS = {
+    "parity": (), "mss": ("mss_ident_rule",), "gf": ("gf_groups", "gf_margin", "gf_weights"),
+    "rs": ("rs_draws",), "qv": ("qv_groups", "qv_margin", "qv_norm"),
+    "araim": ("araim_rules", "araim_fde", "araim_constants"),
 }
 
 
@@ -87,30 +152,42 @@ _OPTIONS = {
 class FdeResult:
     """Snapshot FDE of every epoch (from :func:`fde`). ``T`` epochs, ``n`` satellites.
 
+    ``alarm``, ``excluded``, ``pos_ecef_m`` and ``status`` mean the same for every
+    algorithm; the statistic and its threshold are each algorithm's own.
+
     Attributes
     ----------
-    algorithm : the algorithm that ran (``"parity"``).
+    algorithm : the algorithm that ran.
     status : (T,) str, ``"ok"`` (detection and isolation available), ``"detect-only"``
-        (one redundant measurement) or ``"unavailable"`` (too few satellites, singular
-        geometry, no convergence: NaN statistic and position, no alarm).
-    statistic : (T,) detection statistic before exclusion (parity: DF_D = r^T W r), NaN
+        (detection only: one redundant measurement; gf/rs/qv: fewer than 5 + q
+        satellites, too few for two groups) or ``"unavailable"`` (too few satellites,
+        singular geometry, no convergence: NaN statistic and position, no alarm).
+    statistic : (T,) detection statistic before exclusion, NaN where unavailable. parity,
+        gf, rs, qv: the chi-square of the weighted residuals r^T W r; mss: the largest
+        separation over its threshold; araim: the largest normalised separation.
+    threshold : (T,) its threshold (chi-square: chi2.isf(p_fa, dof); mss, araim: 1), NaN
         where unavailable.
-    threshold : (T,) its threshold (parity: chi2.isf(p_fa, dof)), NaN where unavailable.
-    alarm : (T,) bool, ``statistic >= threshold``.
+    alarm : (T,) bool, the algorithm's detection test fails (``statistic >= threshold``
+        for parity, ``>`` for the others), never where unavailable.
     dof : (T,) int, redundancy m - (3 + clocks) of the all-satellite solution.
-    isolated : (T,) int, satellite named faulty where an alarm is raised (largest
-        isolation statistic), -1 otherwise.
-    excluded : (T, n) bool, satellites excluded (greedy, at most ``max_exclusions``).
+    isolated : (T,) int, satellite the algorithm names faulty where an alarm is raised
+        (parity: largest isolation statistic; mss: the identified or best-ranked
+        sub-solution; gf, qv: largest score; rs: an isolated satellite; araim: the
+        excluded satellite or the satellite of the mode explaining the alarm), -1
+        otherwise and where none is named.
+    excluded : (T, n) bool, satellites excluded, at most ``max_exclusions`` at one epoch.
     pos_ecef_m : (T, 3) position after exclusion (equal to ``pos_before_ecef_m`` where
         nothing was excluded; NaN where the epoch is unavailable, which includes 4
         satellites and no redundancy, or where the solution after exclusion is).
     pos_before_ecef_m : (T, 3) position from all tracked satellites (NaN where
         unavailable).
     clock_m : (T, q) receiver clock of each system before exclusion (m; NaN for a system
-        with no satellite tracked and where unavailable).
+        with no satellite tracked and where unavailable). parity only: NaN for the other
+        algorithms, whose engine output has no clock.
     statistic_after : (T,) detection statistic of the last solution after exclusion.
+        parity only: NaN for the other algorithms.
     outputs : the optional outputs asked for (``outputs=`` option), by name, see
-        :data:`FDE_OUTPUTS`.
+        :data:`FDE_ALGORITHM_OUTPUTS`.
     """
 
     algorithm: str
@@ -129,7 +206,7 @@ class FdeResult:
 
 
 def fde(pos_sv_ecef_m, pr_m, sigma_m, *, algorithm: str = "parity", sys_idx=None,
-        p_fa: float = 1e-3, max_exclusions: int = 1, **options: Any) -> FdeResult:
+        p_fa: float | None = None, max_exclusions: int = 1, **options: Any) -> FdeResult:
     """Snapshot fault detection and exclusion on arrays, every epoch at once.
 
     Parameters
@@ -140,18 +217,59 @@ def fde(pos_sv_ecef_m, pr_m, sigma_m, *, algorithm: str = "parity", sys_idx=None
     pr_m : (T, n) pseudoranges (m), corrected for the satellite clock and the atmosphere;
         NaN = not tracked at that epoch.
     sigma_m : scalar or (T, n) 1-sigma of each pseudorange (m), finite and > 0 wherever
-        ``pr_m`` is finite.
-    algorithm : ``"parity"`` (seed 000: chi-square test of the parity vector, isolation by
-        the largest DF_I, exclusion and re-solve).
+        ``pr_m`` is finite (araim: ``sigma_int``, the integrity sigma).
+    algorithm : one of :data:`FDE_ALGORITHMS`, each running the implementation of the
+        registered algorithm of that name:
+
+        * ``"parity"`` (seed 000): chi-square test of the parity vector, isolation by the
+          largest DF_I, exclusion and re-solve, greedily up to ``max_exclusions``;
+        * ``"mss"`` (seed 001): multiple solution separation, identification by
+          sub-sub-solutions, exclusion of one satellite or (after a multiple-fault verdict)
+          a pair. Barometric aiding is off (no altimeter in the arrays);
+        * ``"gf"``, ``"rs"``, ``"qv"`` (seed 004): chi-square detection, then multi-fault
+          isolation by group evidence fusion, random search or quality value; every
+          isolated satellite is excluded;
+        * ``"araim"`` (ARAIM ADD v4.2): multiple hypothesis solution separation; the
+          exclusion is a satellite or a whole constellation.
     sys_idx : (n,) int system index of each satellite (one receiver clock per system);
         default all 0 (one system).
-    p_fa : false-alarm probability of the detection test, in (0, 1).
-    max_exclusions : satellites that may be excluded one after another at one epoch, in
-        [0, 10] (0: detect only).
-    **options : ``outputs`` (tuple of names from :data:`FDE_OUTPUTS`, default none),
-        ``p_md`` (for the protection levels, default 1e-3), ``chunk_epochs`` (default
-        2048) and ``path`` (``"fast"``, default, or ``"reference"``: the plain numpy path
-        the kernel replaces, same decisions, for checking).
+    p_fa : false-alarm probability of the detection test, in (0, 1); default 1e-3. Not
+        for araim, whose false-alarm budgets are the constants ``p_fa_vert`` and
+        ``p_fa_hor`` of its rule set (``araim_constants``).
+    max_exclusions : satellites that may be excluded at one epoch, >= 0 (0: detect only;
+        parity: in [0, 10], excluded greedily one after another). For the others it caps the
+        algorithm's own exclusion: where it would exclude more satellites (an mss pair, a
+        gf/rs/qv set, an araim constellation) nothing is excluded, the alarm stands and
+        ``pos_ecef_m`` is the all-satellite position; the scenario engine's decisions are
+        those of a cap at least the number of satellites.
+    **options : by algorithm (any other is refused, naming those that apply):
+
+        * all: ``outputs``, a tuple of names from ``FDE_ALGORITHM_OUTPUTS[algorithm]``
+          (default none);
+        * parity: ``p_md`` (protection levels, default 1e-3), ``chunk_epochs`` (default
+          2048), ``path`` (``"fast"``, default, or ``"reference"``: the plain numpy path
+          the kernel replaces, same decisions, for checking);
+        * mss: ``p_md`` (protection levels, default 1e-3), ``mss_ident_rule``
+          (``"unique"``, default, or ``"rank"``);
+        * gf: ``gf_groups`` (0 = N^2, default), ``gf_margin`` (0.1), ``gf_weights``
+          (``"pdop"``); qv: ``qv_groups``, ``qv_margin``, ``qv_norm``;
+        * rs: ``rs_draws`` (50) and ``seed`` (int, default 0: with a scenario's seed the
+          draws are the scenario engine's). The draws of an epoch are keyed by the rank of
+          its set of tracked satellites among the batch's sets, so they may change with
+          the rest of the batch;
+        * araim: ``araim_rules`` (``"add-v4.2"``, default, or ``"blanch-2012"``),
+          ``araim_fde`` (exclusion, default True), ``araim_constants`` (a dict of kernel
+          constants, e.g. ``{"phmi_vert": 1e-9}``), and the integrity support message as
+          arrays: ``sigma_acc_m`` (accuracy sigma, default ``sigma_m``: sigma_int =
+          sigma_acc), ``b_nom_m`` and ``b_cont_m`` (biases, default 0), ``p_sat``
+          (default 1e-5) and ``p_const`` (per system, default 1e-8; both MAAST's GPS
+          values). :func:`raimcore.measure.error_models.araim_sigmas` gives the sigmas
+          the scenario engine derives from elevations and an ISM. An epoch without
+          redundancy is "unavailable", as for every algorithm here (the registered araim
+          calls it "detect-only", its statistic NaN or rounding noise).
+
+        The algorithm-specific options are declared once, by the registered algorithm
+        (``raimcore.algorithms.get(name).options``), and checked by it.
 
     Returns
     -------
@@ -161,12 +279,13 @@ def fde(pos_sv_ecef_m, pr_m, sigma_m, *, algorithm: str = "parity", sys_idx=None
     Raises
     ------
     ValueError naming the argument: bad shapes, non-positive sigma, p_fa outside (0, 1),
-    an algorithm that is not supported, an unknown option or output.
+    an algorithm that is not supported, an option unknown or not of this algorithm, an
+    option value out of range, an output the algorithm does not have.
 
     Notes
     -----
-    The fast path makes the decisions of the reference path (``tests/test_fde.py``) with
-    one exception that is not a decision: two satellites alone in their system have
+    The fast parity path makes the decisions of the reference path (``tests/test_fde.py``)
+    with one exception that is not a decision: two satellites alone in their system have
     parallel parity columns (isolability 1) and exactly equal isolation statistics, so
     which of them the largest DF_I names is decided by rounding, in both paths.
 
@@ -174,7 +293,8 @@ def fde(pos_sv_ecef_m, pr_m, sigma_m, *, algorithm: str = "parity", sys_idx=None
     ----------
     Liao X., Huang S. (1996), parity vector method for GPS fault detection and isolation
     (seed 000). Bancroft S. (1985), An algebraic solution of the GPS equations, IEEE
-    Trans. AES 21(1).
+    Trans. AES 21(1). Seeds 001 (MSS) and 004 (GF, RS, QV); ARAIM ADD v4.2 (2022): see
+    the registered algorithms.
 
     Examples
     --------
@@ -191,14 +311,30 @@ def fde(pos_sv_ecef_m, pr_m, sigma_m, *, algorithm: str = "parity", sys_idx=None
     (True, [3], 'ok')
     >>> bool(np.linalg.norm(r.pos_ecef_m[0] - rx) < 5.0)
     True
+    >>> m = raimcore.fde(sv, pr, 1.0, algorithm="mss")
+    >>> bool(m.alarm[0]), np.flatnonzero(m.excluded[0]).tolist(), str(m.status[0])
+    (True, [3], 'ok')
     """
     if algorithm not in FDE_ALGORITHMS:
-        raise ValueError(f"algorithm must be one of {', '.join(FDE_ALGORITHMS)} (what "
-                         f"raimcore.fde supports so far); got {algorithm!r}")
-    opts = _options(options)
+        raise ValueError(f"algorithm must be one of {', '.join(FDE_ALGORITHMS)}; got "
+                         f"{algorithm!r}")
+    opts, engine_opts = _options(algorithm, options)
     sv, pr, w, sys_idx, n_sys = _check_inputs(pos_sv_ecef_m, pr_m, sigma_m, sys_idx)
-    p_fa = check_probability("p_fa", p_fa)
-    max_excl = check_int("max_exclusions", max_exclusions, 0, 10)
+    if p_fa is not None and algorithm == "araim":
+        raise ValueError("p_fa does not apply to algorithm 'araim': its false-alarm budgets "
+                         "are the constants p_fa_vert and p_fa_hor (option araim_constants)")
+    p_fa = check_probability("p_fa", _P_FA if p_fa is None else p_fa)
+    max_excl = check_int("max_exclusions", max_exclusions, 0,
+                         10 if algorithm == "parity" else None)
+    if algorithm != "parity":
+        sigma = _sigma_array(sigma_m, w)
+        if algorithm == "araim":
+            out = _araim(sv, pr, w, sigma, sys_idx, n_sys, opts, engine_opts)
+        else:
+            data = _measurements(sv, pr, w, sigma, sys_idx, n_sys, p_fa, opts["p_md"],
+                                 opts["seed"])
+            out = _run_registered(algorithm, data, engine_opts)
+        return _from_output(algorithm, out, w, sys_idx, n_sys, max_excl, opts["outputs"])
     run = _parity_fde if opts["path"] == "fast" else _parity_fde_reference
     kw = {} if opts["path"] != "fast" else {"chunk_epochs": opts["chunk_epochs"]}
     out = run(sv, pr, w, sys_idx, n_sys, p_fa, max_excl, outputs=opts["outputs"],
@@ -218,23 +354,203 @@ def fde(pos_sv_ecef_m, pr_m, sigma_m, *, algorithm: str = "parity", sys_idx=None
         outputs={k: out[k] for k in opts["outputs"]})
 
 
-def _options(options):
-    """Validate ``**options`` of :func:`fde` against :data:`_OPTIONS`; defaults filled."""
+def _options(algorithm, options):
+    """Validate ``**options`` of :func:`fde` for ``algorithm``.
+
+    Returns ``(opts, engine_opts)``: the options of :data:`_OPTIONS` (defaults filled)
+    and those of the registered algorithm, resolved by its option keys.
+    """
+    mine = [k for k, v in _OPTIONS.items() if algorithm in v[2]]
+    engine_names = _ENGINE_OPTIONS[algorithm]
+    allowed = mine + list(engine_names)
     for name in options:
-        if name not in _OPTIONS:
-            raise ValueError(f"unknown option {name!r} for raimcore.fde; options: "
-                             f"{', '.join(_OPTIONS)}")
-    opts = {k: options.get(k, d) for k, (d, _) in _OPTIONS.items()}
+        if name in allowed:
+            continue
+        where = [a for a in FDE_ALGORITHMS
+                 if a in _OPTIONS.get(name, ((), "", ()))[2] or name in _ENGINE_OPTIONS[a]]
+        if where:
+            raise ValueError(f"option {name!r} does not apply to algorithm {algorithm!r} "
+                             f"(only to {', '.join(where)}); options of {algorithm}: "
+                             f"{', '.join(allowed)}")
+        raise ValueError(f"unknown option {name!r} for raimcore.fde; options: "
+                         f"{', '.join(allowed)} (algorithm {algorithm!r})")
+    opts = {k: options.get(k, d) for k, (d, _, _) in _OPTIONS.items()}
     outs = opts["outputs"]
     outs = (outs,) if isinstance(outs, str) else tuple(outs)
+    have = FDE_ALGORITHM_OUTPUTS[algorithm]
     for o in outs:
-        if o not in FDE_OUTPUTS:
-            raise ValueError(f"outputs must name some of {', '.join(FDE_OUTPUTS)}; got {o!r}")
+        if o not in have:
+            raise ValueError(f"outputs must name some of {', '.join(have)} (algorithm "
+                             f"{algorithm!r}); got {o!r}")
     opts["outputs"] = tuple(dict.fromkeys(outs))
     opts["p_md"] = check_probability("p_md", opts["p_md"])
     opts["chunk_epochs"] = check_int("chunk_epochs", opts["chunk_epochs"], 1)
+    opts["seed"] = check_int("seed", opts["seed"], 0)
     check_choice("path", opts["path"], ("fast", "reference"))
-    return opts
+    engine_opts = {}
+    if engine_names:
+        from .algorithms import get
+
+        engine_opts = get(algorithm).resolve_options(
+            {k: v for k, v in options.items() if k in engine_names})
+    return opts, engine_opts
+
+
+def _sigma_array(sigma_m, w):
+    """``sigma_m`` as a (T, n) array: the values given where tracked (``w > 0``), 1 elsewhere
+    (checked by :func:`_check_inputs`)."""
+    sig = np.broadcast_to(np.asarray(sigma_m, dtype=float), w.shape)
+    return np.where(w > 0, sig, 1.0)
+
+
+def _measurements(sv, pr, w, sigma, sys_idx, n_sys, p_fa, p_md, seed):
+    """The arrays as the :class:`~raimcore.measure.Measurements` a registered algorithm
+    takes: tracked = ``w > 0``, no altimeter, no elevations (NaN: the snapshot algorithms
+    wired here do not read them), alert limits that no output of :func:`fde` reads."""
+    from .measure.data import Measurements
+
+    t_n, s_n = pr.shape
+    used = w > 0
+    # A satellite without a position is not tracked; the engine always has positions.
+    sv = np.where(np.isfinite(sv).all(axis=-1, keepdims=True), sv, _DUMMY_M)
+    unknown = np.full((t_n, s_n), np.nan)
+    return Measurements(
+        t_s=np.arange(t_n, dtype=float), sat_names=tuple(f"SV{j}" for j in range(s_n)),
+        sys_idx=sys_idx, systems=tuple(f"SYS{k}" for k in range(n_sys)), pos_sv_ecef_m=sv,
+        pr_m=np.where(used, pr, np.nan), used=used, az_rad=unknown, el_rad=unknown,
+        sigma_m=sigma, noise=None, p_fa=p_fa, p_md=p_md, hal_m=_NO_LIMIT_M,
+        val_m=_NO_LIMIT_M, seed=seed)
+
+
+def _run_registered(algorithm, data, engine_opts):
+    """The registered ``algorithm`` on ``data``, as the scenario engine runs it."""
+    from .algorithms import get
+    from .pipeline import run_algorithm
+
+    return run_algorithm(get(algorithm), data, engine_opts)
+
+
+def _araim(sv, pr, w, sigma, sys_idx, n_sys, opts, engine_opts):
+    """ARAIM MHSS on the arrays: the orchestration of :func:`raimcore.algorithms.araim.run`
+    with the sigmas and ISM values given as arrays; returns an ``AlgorithmOutput``.
+
+    As :func:`raimcore.pipeline.run_algorithm` does, the satellites never tracked are
+    dropped first and put back (not excluded) at the end: the kernel's choice between two
+    modes with equal separations follows the column order, so this keeps the engine's.
+    """
+    t_n, s_n = pr.shape
+    used = w > 0
+    sig_acc = sigma if opts["sigma_acc_m"] is None else _ism_array(
+        "sigma_acc_m", opts["sigma_acc_m"], (t_n, s_n), used, positive=True)
+    ism = (sig_acc, _ism_array("b_nom_m", opts["b_nom_m"], (t_n, s_n), used),
+           _ism_array("b_cont_m", opts["b_cont_m"], (t_n, s_n), used),
+           _ism_array("p_sat", opts["p_sat"], (t_n, s_n), used, hi=1.0))
+    p_const = _ism_array("p_const", opts["p_const"], (n_sys,), None, hi=1.0)
+    cols = np.flatnonzero(used.any(axis=0))
+    if cols.size == 0:
+        from .pipeline import unavailable_output
+
+        return unavailable_output(_measurements(sv, pr, w, sigma, sys_idx, n_sys, _P_FA,
+                                                1e-3, 0))
+    out = _araim_kernel(sv[:, cols], pr[:, cols], w[:, cols], sigma[:, cols], sys_idx[cols],
+                        n_sys, *(a[:, cols] for a in ism), p_const, engine_opts)
+    return out.expand_sats(cols, s_n)
+
+
+def _araim_kernel(sv, pr, w, sigma, sys_idx, n_sys, sig_acc, b_nom, b_cont, p_sat, p_const,
+                  engine_opts):
+    """:func:`_araim` on the tracked satellites."""
+    from .algorithms.araim import _single_sat
+    from .algorithms.base import AlgorithmOutput
+    from .araim import mhss
+    from .geometry import enu_to_ecef
+    from .lsq import wls
+
+    t_n, s_n = pr.shape
+    used = w > 0
+    lin = wls(sv, pr, w, sys_idx, n_sys)  # weights 1 / sigma_int^2: the kernel's S^(0)
+    ok = lin.available
+    pos_lin = np.where(ok[:, None], lin.pos_ecef_m, 0.0)
+    g = np.where(used[..., None] & ok[:, None, None], lin.h_enu, np.nan)
+    y = np.where(used & ok[:, None], np.nan_to_num(lin.resid_m), 0.0)
+    fde_on = engine_opts["araim_fde"]
+    res = mhss(g, np.where(used, sigma, np.nan), np.where(used, sig_acc, np.nan), b_nom,
+               b_cont, p_sat, p_const, rules=engine_opts["araim_rules"], y=y, fde=fde_on,
+               **engine_opts["araim_constants"].as_dict())
+    dof = lin.n_used - lin.n_states
+    # No redundancy (dof 0) is "unavailable" here as for every algorithm of fde (the
+    # registered araim calls it "detect-only", its statistic NaN or rounding noise).
+    avail = ok & (res.status == "ok") & (dof >= 1)
+    status = np.where(~avail, STATUS_UNAVAILABLE,
+                      np.where(dof >= 2, STATUS_OK, STATUS_NO_ISOLATION))
+    alarm = avail & res.alarm
+    rows = np.arange(t_n)
+    excluded = np.zeros((t_n, s_n), dtype=bool)
+    dx_after = np.zeros((t_n, 3))
+    if fde_on:  # a satellite, or every tracked satellite of a constellation
+        es, ec = res.excluded_sat, res.excluded_const
+        has_s, has_c = alarm & (es >= 0), alarm & (ec >= 0)
+        excluded[rows[has_s], es[has_s]] = True
+        excluded |= has_c[:, None] & used & (sys_idx[None, :] == ec[:, None])
+        dx_after = np.where((has_s | has_c)[:, None], np.nan_to_num(res.dx_excluded_enu_m),
+                            0.0)
+    iso = np.where(excluded.sum(-1) == 1, np.argmax(excluded, axis=-1), -1)
+    isolated = np.where(iso >= 0, iso, np.where(alarm, _single_sat(res.modes,
+                                                                   res.alarm_mode), -1))
+    nan_rows = ~avail[:, None]
+    return AlgorithmOutput(
+        status=status, statistic=np.where(avail, res.test_ratio, np.nan),
+        threshold=np.where(avail, 1.0, np.nan), alarm=alarm,
+        pos_before_ecef_m=np.where(nan_rows, np.nan, lin.pos_ecef_m),
+        pos_after_ecef_m=np.where(nan_rows, np.nan, enu_to_ecef(dx_after, pos_lin)),
+        excluded=excluded & avail[:, None], isolated=np.where(avail, isolated, -1),
+        columns={"hpl_m": res.hpl_m, "vpl_m": res.vpl_m, "emt_m": res.emt_m,
+                 "sigma_acc_v_m": res.sigma_acc_v_m})
+
+
+def _ism_array(name, value, shape, used, *, positive=False, hi=None):
+    """An ARAIM option as an array of ``shape`` ((T, n) accepts a scalar, (n,) or (T, n);
+    (q,) a scalar or (q,)): finite, >= 0 (> 0 if ``positive``) and <= ``hi`` where
+    ``used`` (everywhere if None), or a one-line ValueError."""
+    a = np.asarray(value, dtype=float)
+    allowed = [(), shape[-1:], shape]
+    if a.shape not in allowed:
+        shapes = " or ".join(str(s) for s in allowed[1:])
+        raise ValueError(f"{name} must be a scalar or have shape {shapes}, got {a.shape}")
+    a = np.broadcast_to(a, shape)
+    vals = a if used is None else a[used]
+    lo_ok = vals > 0.0 if positive else vals >= 0.0
+    if not (np.isfinite(vals).all() and lo_ok.all() and (hi is None or (vals <= hi).all())):
+        rng = ("> 0" if positive else ">= 0") + ("" if hi is None else f" and <= {hi:g}")
+        where = "" if used is None else " wherever pr_m is finite"
+        raise ValueError(f"{name} must be finite and {rng}{where}")
+    return a
+
+
+def _from_output(algorithm, out, w, sys_idx, n_sys, max_excl, outputs):
+    """An :class:`FdeResult` from a registered algorithm's ``AlgorithmOutput``: the
+    exclusion capped at ``max_excl`` satellites, NaN and no alarm where unavailable."""
+    status = np.asarray(out.status, dtype=_STATUS_DTYPE)
+    valid = status != STATUS_UNAVAILABLE
+    t_n = len(status)
+    alarm = np.asarray(out.alarm, dtype=bool) & valid
+    excluded = np.asarray(out.excluded, dtype=bool) & valid[:, None]
+    excluded[excluded.sum(axis=-1) > max_excl] = False  # capped: nothing excluded there
+    nan_rows = ~valid[:, None]
+    pos_before = np.where(nan_rows, np.nan, out.pos_before_ecef_m)
+    pos_after = np.where(excluded.any(axis=-1)[:, None], out.pos_after_ecef_m, pos_before)
+    used = w > 0
+    n_present = (used.astype(float) @ _clock_columns(sys_idx, n_sys) > 0).sum(axis=-1)
+    extra = {**out.columns, **out.per_sat}
+    return FdeResult(
+        algorithm=algorithm, status=status,
+        statistic=np.where(valid, np.asarray(out.statistic, dtype=float), np.nan),
+        threshold=np.where(valid, np.asarray(out.threshold, dtype=float), np.nan),
+        alarm=alarm, dof=used.sum(axis=-1) - 3 - n_present,
+        isolated=np.where(alarm, np.asarray(out.isolated), -1), excluded=excluded,
+        pos_ecef_m=np.where(nan_rows, np.nan, pos_after), pos_before_ecef_m=pos_before,
+        clock_m=np.full((t_n, n_sys), np.nan), statistic_after=np.full(t_n, np.nan),
+        outputs={k: np.asarray(extra[k]) for k in outputs})
 
 
 def _check_inputs(pos_sv_ecef_m, pr_m, sigma_m, sys_idx):

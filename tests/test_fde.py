@@ -300,8 +300,8 @@ def test_the_scenario_engine_runs_the_same_kernel(bench_faulted):
 # ---------------------------------------------------------------- the public edge
 
 @pytest.mark.parametrize("kwargs,message", [
-    ({"algorithm": "mss"}, "algorithm must be one of parity"),
-    ({"algorithm": "nope"}, "algorithm must be one of parity"),
+    ({"algorithm": "nope"}, "algorithm must be one of parity, mss, gf, rs, qv, araim"),
+    ({"seed": 3}, "option 'seed' does not apply to algorithm 'parity' (only to rs)"),
     ({"chunk": 5}, "unknown option 'chunk' for raimcore.fde; options: outputs"),
     ({"outputs": ("hpl",)}, "outputs must name some of isolation"),
     ({"p_fa": 1.5}, "p_fa must be a probability"),
