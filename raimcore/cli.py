@@ -15,6 +15,10 @@ from pathlib import Path
 
 from . import __version__
 
+#: Error models whose sigmas come from elsewhere than sigma_m (the summary's header
+#: names the model instead of sigma_m).
+SIGMA_FREE_MODELS = frozenset({"rtklib", "broadcast", "araim"})
+
 
 def _add_list(sub):
     p = sub.add_parser("list", help="list the built-in scenarios and algorithms")
@@ -285,8 +289,10 @@ def format_summary(result) -> str:
     m = result.measurements
     lines = [
         f"scenario {s.name}: algorithm {s.algorithm}, {sm.epochs} epochs, "
-        f"{'+'.join(m.systems)} ({len(m.sat_names)} satellites), sigma {s.sigma_m:g} m "
-        f"({s.noise}"
+        f"{'+'.join(m.systems)} ({len(m.sat_names)} satellites), "
+        + (f"error model {sm.error_model} " if sm.error_model in SIGMA_FREE_MODELS
+           else f"sigma {s.sigma_m:g} m ")
+        + f"({s.noise}"
         + (f", correlated over {s.noise_corr_s:g} s" if s.noise_corr_s > 0 else "")
         + f"), p_fa {s.p_fa:g}, faults: {faults}",
         f"  unavailable epochs (no position, in no rate): {sm.unavailable_epochs}"

@@ -218,3 +218,14 @@ def test_show_prints_the_reports_without_a_scenario_file(capsys):
     for name, title in (("android", "# Phone logs"), ("recordings", "# Real recordings")):
         assert main(["show", name]) == 0
         assert capsys.readouterr().out.startswith(title)
+
+
+def test_summary_header_names_the_error_model_where_sigma_m_is_not_used(capsys):
+    assert main(["run", "default", "--set", "duration_s=60", "--error-model", "rtklib"]) == 0
+    header = capsys.readouterr().out.splitlines()
+    header = next(line for line in header if line.startswith("scenario "))
+    assert "error model rtklib" in header and "sigma 3 m" not in header
+    assert main(["run", "default", "--set", "duration_s=60"]) == 0
+    header = next(line for line in capsys.readouterr().out.splitlines()
+                  if line.startswith("scenario "))
+    assert "sigma 3 m" in header
