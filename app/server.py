@@ -67,6 +67,7 @@ class Dashboard:
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
         threading.Thread(target=self._prewarm, daemon=True, name="raim-prewarm").start()
+        threading.Thread(target=warm_kernels, daemon=True, name="raim-warm-kernels").start()
 
     def _prewarm(self) -> None:
         """Run the start scenario once, in the background: the first tab finds it in the
@@ -132,6 +133,20 @@ class Dashboard:
         for s in list(self.sessions.values()):
             s.close()
         self.server.stop()
+
+
+def warm_kernels() -> bool:
+    """Compile, or load from numba's on-disk cache, the particle filters' compiled kernels
+    (:func:`raimcore.algorithms._pf_numba.warm_up`, a tiny bank step) so that the first
+    PF-LLR change of a session does not pay it (about 4 s cold, 0.2 s cached); False
+    where they do not run here (numba missing or ``RAIM_STUDIO_NUMBA=0``)."""
+    from raimcore.algorithms import pf
+
+    nb = pf.numba_kernels()
+    if nb is None:
+        return False
+    nb.warm_up()
+    return True
 
 
 #: glibc's ``mallopt`` parameter for the number of malloc arenas, and the count the

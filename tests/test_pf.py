@@ -601,8 +601,8 @@ def test_fast_kernel_blocks_change_nothing(budget, monkeypatch):
     at a time gives the one-block result."""
     d, model, noise, sys_idx, masks, x = _bank_case("two systems, gaussian")
 
-    def two_steps():
-        bank = pf.ParticleBank(x[:, :, :50], model, drift_var=0.3)
+    def two_steps():  # the numpy fast kernel: the one that works in blocks
+        bank = pf.ParticleBank(x[:, :, :50], model, drift_var=0.3, kernel="fast")
         rng = np.random.default_rng(2)
         out = [bank.step(1.0, d.pos_sv_ecef_m[k], d.pr_m[k], masks, sys_idx, noise, rng)
                for k in (1, 2)]
@@ -619,11 +619,13 @@ def test_fast_kernel_blocks_change_nothing(budget, monkeypatch):
         np.testing.assert_allclose(a.log_pred, b.log_pred, rtol=0, atol=tiny_neper)
 
 
-def test_bank_step_leaves_the_start_cloud_alone():
-    """The fast kernel updates the bank's own copy in place, never the caller's array."""
+@pytest.mark.parametrize("kernel", pf.KERNELS)
+def test_bank_step_leaves_the_start_cloud_alone(kernel):
+    """Every kernel updates the bank's own copy (the fast and numba ones in place), never
+    the caller's array."""
     d, model, noise, sys_idx, masks, x = _bank_case("one system, student-t")
     before = x.copy()
-    bank = pf.ParticleBank(x, model)
+    bank = pf.ParticleBank(x, model, kernel=kernel)
     bank.step(1.0, d.pos_sv_ecef_m[1], d.pr_m[1], masks, sys_idx, noise,
               np.random.default_rng(0))
     np.testing.assert_array_equal(x, before)
@@ -645,6 +647,191 @@ def test_run_llr_bank_kernels_agree():
     np.testing.assert_allclose(fast.beta, ref.beta, rtol=0, atol=1e-5)
     np.testing.assert_allclose(fast.estimate, ref.estimate, rtol=0, atol=1e-5)
     assert np.nanmax(fast.beta) > 20.0  # the 50 m step on G19 was seen
+
+
+# -- the compiled kernel against the numpy fast kernel (ParticleBank(kernel="numba")) -------
+
+needs_numba = pytest.mark.skipif(pf.numba_kernels() is None,
+                                 reason="numba not installed (the fast extra) or disabled")
+#: Numba against the numpy fast kernel: the same formulas, sums in another order. States
+#: in m, log weights and log-likelihoods in nepers (measured: 2e-8 at most).
+NUMBA_ATOL = 1e-7
+
+
+def _assert_steps_agree(a, b, bank_a, bank_b):
+    np.testing.assert_array_equal(a.resampled, b.resampled)
+    np.testing.assert_allclose(a.log_pred, b.log_pred, rtol=0, atol=NUMBA_ATOL)
+    np.testing.assert_allclose(a.n_eff, b.n_eff, rtol=1e-8)
+    np.testing.assert_allclose(a.estimate, b.estimate, rtol=0, atol=NUMBA_ATOL)
+    np.testing.assert_allclose(bank_a.particles, bank_b.particles, rtol=0, atol=NUMBA_ATOL)
+    np.testing.assert_allclose(bank_a.log_w, bank_b.log_w, rtol=0, atol=NUMBA_ATOL)
+    np.testing.assert_array_equal(bank_a.drift_var, bank_b.drift_var)
+
+
+@needs_numba
+@pytest.mark.parametrize("case", ["one system, student-t", "two systems, gaussian",
+                                  "cv, mixture, a satellite unused", "no drift, scaled noise"])
+def test_numba_bank_step_agrees_with_the_fast_kernel(case):
+    """Agreement: 10 steps of the compiled kernel and of the numpy fast kernel from the
+    same cloud and seed (two realisations x 7 filters x 300 particles, a 5 s gap and a
+    clock restart on the way): the same random numbers, the same particles, weights,
+    predictive likelihoods, estimates and resampling decisions to rounding."""
+    d, model, noise, sys_idx, masks, x = _bank_case(case)
+    kernels = ("numba", "fast")
+    banks = {k: pf.ParticleBank(x, model, drift_var=0.3 if model.has_drift else 0.0,
+                                kernel=k) for k in kernels}
+    assert banks["numba"].kernel == "numba"
+    rngs = {k: np.random.default_rng(5) for k in kernels}
+    resampled = 0
+    for k in range(1, 11):
+        dt = 5.0 if k == 4 else 1.0
+        reset = pf.CLOCK_RESET_SD_M**2 if k == 7 else 0.0
+        out = {name: bank.step(dt, d.pos_sv_ecef_m[k][None, None], d.pr_m[k][None, None],
+                               masks[None], sys_idx, noise, rngs[name], q_scale=2.0,
+                               reset_var=reset)
+               for name, bank in banks.items()}
+        _assert_steps_agree(out["numba"], out["fast"], banks["numba"], banks["fast"])
+        resampled += out["numba"].resampled.sum()
+    assert 0 < resampled < 10 * 14  # resampling exercised, not on every step
+    # Both generators consumed the same random numbers.
+    assert rngs["numba"].random() == rngs["fast"].random()
+
+
+@needs_numba
+@pytest.mark.parametrize("noise", [StudentT(1.0), Gaussian(2.0)], ids=["student-t", "gaussian"])
+def test_numba_kernel_edges(noise):
+    """Edge table: 30 satellites of one system, huge residuals (a 1e9 m common error: the
+    Student-t product of 1 + t^2 over the satellites passes 1e250 and is taken in parts),
+    a NaN pseudorange on a satellite no filter uses, a filter that sees no satellite
+    (predict only) and one that sees a single one; the compiled kernel agrees with the
+    numpy fast kernel and no NaN reaches a neighbouring filter."""
+    rng = np.random.default_rng(4)
+    s_n, n = 30, 64
+    rx = np.array([4.0e6, 3.0e5, 4.9e6])
+    u = rng.normal(size=(s_n, 3))
+    sv = rx + 2.2e7 * (u / np.linalg.norm(u, axis=-1, keepdims=True))
+    pr = np.linalg.norm(sv - rx, axis=-1) + 1e9 + rng.normal(0, 2.0, s_n)
+    pr[7] = np.nan
+    masks = np.ones((5, s_n), bool)
+    masks[:, 7] = False
+    masks[1] = False  # no satellite: predict only
+    masks[2] = False
+    masks[2, 3] = True  # one satellite
+    masks[3, ::2] = False
+    model = pf.ProcessModel("static", 1, q_drift_mps2=0.2)
+    x = np.zeros((5, n, model.dim))
+    x[..., :3] = rx + rng.normal(0, 5.0, (5, n, 3))
+    x[..., 3] = 1e9 + rng.normal(0, 5.0, (5, n))
+    banks = {k: pf.ParticleBank(x, model, drift_var=0.1, kernel=k) for k in ("numba", "fast")}
+    sys_idx = np.zeros(s_n, dtype=int)
+    for k in range(3):
+        out = {name: bank.step(1.0, sv, pr + 3e9 * (k == 2), masks, sys_idx, noise,
+                               np.random.default_rng(k)) for name, bank in banks.items()}
+        assert np.all(np.isfinite(out["numba"].log_pred[[0, 2, 3, 4]]))
+        assert np.all(np.isfinite(banks["numba"].particles))
+        np.testing.assert_array_equal(out["numba"].log_pred[1], 0.0)
+        # Log-likelihoods of order 1e3 nepers: agreement relative to them.
+        np.testing.assert_allclose(out["numba"].log_pred, out["fast"].log_pred, rtol=1e-12,
+                                   atol=NUMBA_ATOL)
+        np.testing.assert_allclose(banks["numba"].particles, banks["fast"].particles,
+                                   rtol=1e-15, atol=NUMBA_ATOL)  # clocks of 1e9 m: ulps
+        np.testing.assert_array_equal(out["numba"].resampled, out["fast"].resampled)
+
+
+@needs_numba
+def test_numba_bank_steps_an_unknown_noise_model_with_numpy():
+    """A noise model the compiled loops do not know (here a subclass of Gaussian: its
+    logpdf may be anything) is stepped by the numpy fast kernel: exactly its results."""
+
+    class Wider(Gaussian):
+        def logpdf(self, x_m):
+            return super().logpdf(np.asarray(x_m) / 2.0)
+
+    d, model, _, sys_idx, masks, x = _bank_case("two systems, gaussian")
+    noise = Wider(3.0)
+    banks = [pf.ParticleBank(x, model, drift_var=0.3, kernel=k) for k in ("numba", "fast")]
+    res = [b.step(1.0, d.pos_sv_ecef_m[1], d.pr_m[1], masks, sys_idx, noise,
+                  np.random.default_rng(1)) for b in banks]
+    np.testing.assert_array_equal(res[0].log_pred, res[1].log_pred)
+    np.testing.assert_array_equal(banks[0].particles, banks[1].particles)
+
+
+@needs_numba
+def test_run_llr_bank_numba_agrees_with_the_fast_kernel():
+    """Agreement over a whole run (seed002 with its fault, 100 s, N = 100): the windowed
+    LLRs, beta, argmax and estimates of the compiled kernel are the numpy fast kernel's."""
+    d, _ = simulate(load_scenario("seed002", duration_s=100, t_start_s=60.0))
+    args = (d.pos_sv_ecef_m, d.pr_m[None], d.used, d.t_s, d.sys_idx, 1, d.noise,
+            pf_llr.process_model(pf_llr.SPEC.resolve_options({}), 1))
+    cfg = dict(n_particles=100, window=10, burn_in=5)
+    runs = {k: pf.run_llr_bank(*args, **cfg, rng=np.random.default_rng(3), kernel=k)
+            for k in ("numba", "fast")}
+    got, want = runs["numba"], runs["fast"]
+    np.testing.assert_array_equal(got.argmax, want.argmax)
+    np.testing.assert_allclose(got.cum_llr, want.cum_llr, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(got.beta, want.beta, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(got.estimate, want.estimate, rtol=0, atol=1e-6)
+    assert np.nanmax(got.beta) > 20.0
+
+
+@needs_numba
+def test_numba_is_the_default_and_warms_up():
+    """With numba installed a bank runs the compiled kernel unless told otherwise, and the
+    dashboard's warm-up (a tiny bank step) runs."""
+    x = np.zeros((2, 8, 4))
+    assert pf.DEFAULT_KERNEL == "numba"
+    assert pf.ParticleBank(x, pf.ProcessModel()).kernel == "numba"
+    assert pf.ParticleBank(x, pf.ProcessModel(), kernel="fast").kernel == "fast"
+    pf.numba_kernels().warm_up()
+
+
+def test_numpy_path_when_numba_is_switched_off(monkeypatch):
+    """RAIM_STUDIO_NUMBA=0 keeps numba out: a bank asked for the compiled kernel (or made
+    by default) runs the numpy fast kernel, says so, and gives the fast kernel's results
+    exactly; the same bank step as with numba, to rounding, where it is installed."""
+    d, model, noise, sys_idx, masks, x = _bank_case("one system, student-t")
+    on = pf.numba_kernels() is not None
+    with_numba = pf.ParticleBank(x, model, drift_var=0.3, kernel="numba")
+    monkeypatch.setenv(pf.NUMBA_ENV, "0")
+    assert not pf.numba_enabled() and pf.numba_kernels() is None
+    banks = [pf.ParticleBank(x, model, drift_var=0.3, kernel=k) for k in ("numba", "fast")]
+    banks.append(pf.ParticleBank(x, model, drift_var=0.3))
+    assert [b.kernel for b in banks] == ["fast", "fast", "fast"]
+    args = (1.0, d.pos_sv_ecef_m[1], d.pr_m[1], masks, sys_idx, noise)
+    res = [b.step(*args, np.random.default_rng(9)) for b in banks]
+    for r, b in zip(res[1:], banks[1:], strict=True):
+        np.testing.assert_array_equal(r.log_pred, res[0].log_pred)
+        np.testing.assert_array_equal(b.particles, banks[0].particles)
+    if on:  # the bank made before the switch keeps its kernel: agreement to rounding
+        assert with_numba.kernel == "numba"
+        ref = with_numba.step(*args, np.random.default_rng(9))
+        _assert_steps_agree(ref, res[0], with_numba, banks[0])
+
+
+def test_switched_off_numba_is_never_imported():
+    """A process started with RAIM_STUDIO_NUMBA=0 defaults to the numpy fast kernel and
+    never imports numba, even after a bank step; without it, ``import raimcore`` and the
+    pf module still leave numba unimported (it is paid at the first bank only)."""
+    import importlib.util
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np; from raimcore.algorithms import pf; "
+            "print(pf.DEFAULT_KERNEL, 'numba' in sys.modules); "
+            "b = pf.ParticleBank(np.zeros((1, 4, 4)), pf.ProcessModel()); "
+            "print(b.kernel, 'numba' in sys.modules)")
+    env = dict(os.environ, RAIM_STUDIO_NUMBA="0")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out == ["fast", "False", "fast", "False"]
+    env.pop("RAIM_STUDIO_NUMBA")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    installed = importlib.util.find_spec("numba") is not None
+    works = installed and pf._numba_module() is not None
+    assert out == ["numba" if installed else "fast", "False", "numba" if works else "fast",
+                   str(works)]
 
 
 @pytest.mark.parametrize("path", ["network", "sort"])

@@ -58,12 +58,16 @@ Measurement model: ``rho_i = ||r - s_i|| + c dt_sys(i) + v_i`` with ``v_i`` from
 scenario's noise model (:mod:`raimcore.measure.noise`): the filter's likelihood is its ``logpdf``.
 
 Kernels (:data:`KERNELS`): a bank step with the clock proposal is computed by the
-``"reference"`` kernel (the plain numpy code of :func:`propose`) or by the ``"fast"`` one
-(the default), which draws the same random numbers in the same order and applies the same
-formulas in fewer, larger array passes: the (S, N) arrays satellite-major, the median by a
+``"reference"`` kernel (the plain numpy code of :func:`propose`), by the ``"fast"`` one,
+which draws the same random numbers in the same order and applies the same formulas in
+fewer, larger array passes: the (S, N) arrays satellite-major, the median by a
 selection network (:func:`median_network`), one system's clock algebra in closed form,
-resampling by counting copies, the cloud updated in place in cache-sized blocks. The two
-agree to rounding (``tests/test_pf.py``); ``tests/benchmarks/bench_pf.py`` times them.
+resampling by counting copies, the cloud updated in place in cache-sized blocks; or by
+the ``"numba"`` one (the default where numba is installed, the ``fast`` extra), compiled
+loops over (filters, particles) doing the fast kernel's per-particle work in one pass
+(:mod:`._pf_numba`) from the same random numbers, drawn with numpy. All three agree to
+rounding (``tests/test_pf.py``); ``tests/benchmarks/bench_pf.py`` times them. The
+environment variable ``RAIM_STUDIO_NUMBA=0`` keeps numba out (the ``"fast"`` kernel).
 Calibrations are cached in memory and on disk (:func:`cached_samples`, :func:`cached_tau`).
 
 References
@@ -96,7 +100,7 @@ from .._validate import check_choice, check_positive
 from ..constants import C_MPS
 from ..geometry import ecef_to_geodetic, enu_rotation
 from ..measure import MS_M
-from ..measure.noise import Gaussian, Scaled, StudentT, scaled
+from ..measure.noise import Gaussian, GaussianMixture, Scaled, StudentT, scaled
 
 __all__ = ["PROCESS_MODELS", "ProcessModel", "ParticleBank", "predict", "log_likelihood",
            "normalise_log_weights", "effective_sample_size", "systematic_resample",
@@ -104,18 +108,51 @@ __all__ = ["PROCESS_MODELS", "ProcessModel", "ParticleBank", "predict", "log_lik
            "propose", "PROPOSALS", "KERNELS", "PROPOSAL_DEFENSIVE", "Q_CLK_TCXO_MPS",
            "Q_DRIFT_TCXO_MPS2", "median_network", "DEFAULT_KERNEL",
            "CLOCK_JUMP_M", "MS_M", "CLOCK_RESET_SD_M", "CLOCK_RESET_DRIFT_SD_MPS",
-           "reset_epochs", "clock_occam"]
+           "reset_epochs", "clock_occam", "NUMBA_ENV", "numba_enabled", "numba_kernels"]
 
 PROCESS_MODELS = ("static", "cv")
 #: Proposals of :class:`ParticleBank`: ``"clock"`` (:func:`propose`, the default) or
 #: ``"prior"`` (the state equation, :func:`predict`: the bootstrap filter).
 PROPOSALS = ("clock", "prior")
-#: Kernels of a :class:`ParticleBank` step: ``"fast"`` (the default) or ``"reference"``
-#: (the plain numpy code the fast one is checked against; the same random numbers).
-KERNELS = ("fast", "reference")
-#: The kernel of a bank made without naming one (benchmarks set it to time the reference
-#: through the whole pipeline).
-DEFAULT_KERNEL = "fast"
+#: Kernels of a :class:`ParticleBank` step: ``"numba"`` (compiled, :mod:`._pf_numba`),
+#: ``"fast"`` (plain numpy) or ``"reference"`` (the plain numpy code the other two are
+#: checked against); all three from the same random numbers.
+KERNELS = ("numba", "fast", "reference")
+#: Environment variable that keeps numba out when set to ``0``: the ``"fast"`` kernel runs
+#: where ``"numba"`` is asked for or is the default.
+NUMBA_ENV = "RAIM_STUDIO_NUMBA"
+
+
+def numba_enabled() -> bool:
+    """Whether the ``"numba"`` kernel may run: numba is installed (looked up, not
+    imported: ``import raimcore`` stays light) and ``RAIM_STUDIO_NUMBA`` is not ``0``."""
+    import importlib.util
+    import os
+
+    return (os.environ.get(NUMBA_ENV, "1").strip() != "0"
+            and importlib.util.find_spec("numba") is not None)
+
+
+@functools.lru_cache(maxsize=1)
+def _numba_module():
+    """The compiled kernels (:mod:`._pf_numba`), or None where numba does not import."""
+    try:
+        from . import _pf_numba
+    except ImportError:
+        return None
+    return _pf_numba
+
+
+def numba_kernels():
+    """:mod:`._pf_numba` if the ``"numba"`` kernel can run here (:func:`numba_enabled`
+    and numba imports), else None."""
+    return _numba_module() if numba_enabled() else None
+
+
+#: The kernel of a bank made without naming one: ``"numba"`` where numba is installed
+#: and not switched off by ``RAIM_STUDIO_NUMBA=0`` at import, else ``"fast"``
+#: (benchmarks set it to time the others through the whole pipeline).
+DEFAULT_KERNEL = "numba" if numba_enabled() else "fast"
 #: Floor of a log weight (the weights' floor 1e-300, as the reference kernel's).
 _LOG_W_FLOOR = math.log(1e-300)
 #: Particle-satellite pairs per likelihood chunk (about 0.5 MB per float64 temporary).
@@ -1307,11 +1344,19 @@ class ParticleBank:
         measurements and the weights corrected by prior / proposal (:func:`propose`);
         ``"prior"``: drawn from the state equation (:func:`predict`, the bootstrap filter,
         which degenerates when the clock is predicted much less well than it is measured).
-    kernel : ``"fast"`` or ``"reference"`` (:data:`KERNELS`; None: :data:`DEFAULT_KERNEL`,
-        ``"fast"``): how a step with the clock proposal is computed. Both draw the same
-        random numbers in the same order and agree to rounding (the agreement tests in
-        ``tests/test_pf.py``); the fast kernel updates the cloud in place with fewer array
-        passes, the reference is the plain numpy code it is checked against.
+    kernel : ``"numba"``, ``"fast"`` or ``"reference"`` (:data:`KERNELS`; None:
+        :data:`DEFAULT_KERNEL`): how a step with the clock proposal is computed. All draw
+        the same random numbers in the same order and agree to rounding (the agreement
+        tests in ``tests/test_pf.py``); the fast kernel updates the cloud in place with
+        fewer array passes, the numba kernel in compiled loops (:mod:`._pf_numba`), the
+        reference is the plain numpy code both are checked against. ``"numba"`` where
+        numba is missing or switched off (:func:`numba_kernels`) is ``"fast"``; a noise
+        model the compiled loops do not know (other than Gaussian, Student-t, the
+        Gaussian mixture, or one of those scaled per satellite) is stepped by ``"fast"``.
+
+    Attributes
+    ----------
+    kernel : the kernel that runs (after any fall-back from ``"numba"``).
 
     The cloud is copied: stepping a bank never changes the array it was made from.
     """
@@ -1323,6 +1368,8 @@ class ParticleBank:
         self.proposal = check_choice("proposal", proposal, PROPOSALS)
         self.kernel = check_choice("kernel", DEFAULT_KERNEL if kernel is None else kernel,
                                    KERNELS)
+        if self.kernel == "numba" and numba_kernels() is None:
+            self.kernel = "fast"
         n = self.particles.shape[-2]
         self.log_w = np.full(self.particles.shape[:-1], -math.log(n))
         self.n_threshold = 2.0 * n / 3.0 if n_threshold is None else float(n_threshold)
@@ -1344,7 +1391,14 @@ class ParticleBank:
         their prediction (m^2, :func:`_propose`); such a step always uses the clock
         proposal (drawn from a diffuse prior, no particle would land on the measurements).
         """
-        if self.kernel == "fast" and (self.proposal == "clock" or reset_var != 0.0):
+        clock = self.proposal == "clock" or reset_var != 0.0
+        if self.kernel == "numba" and clock:
+            nb = _numba_module()
+            codes = _noise_codes(noise)
+            if codes is not None:
+                return self._step_numba(nb, codes, dt_s, pos_sv_ecef_m, pr_m, mask, sys_idx,
+                                        noise, rng, q_scale, q_scale_vel, reset_var)
+        if self.kernel != "reference" and clock:
             return self._step_fast(dt_s, pos_sv_ecef_m, pr_m, mask, sys_idx, noise, rng,
                                    q_scale, q_scale_vel, reset_var)
         drift_var = self.drift_var
@@ -1426,6 +1480,153 @@ class ParticleBank:
             log_w.reshape(-1, n)[rows] = -math.log(n)
         self.log_w = log_w
         return StepResult(log_norm[..., 0], n_eff, est, need)
+
+    def _step_numba(self, nb, codes, dt_s, pos_sv_ecef_m, pr_m, mask, sys_idx, noise, rng,
+                    q_scale, q_scale_vel, reset_var) -> StepResult:
+        """:meth:`_step_fast` by the compiled loops (:mod:`._pf_numba`): the same random
+        numbers drawn in the same order here, the same per-filter terms
+        (:func:`_clock_terms`), the per-particle work in one compiled pass."""
+        model = self.model
+        x = np.require(self.particles, float, ["C", "W"])
+        batch, n, q, d = x.shape[:-2], x.shape[-2], model.n_clk, x.shape[-1]
+        rows = int(np.prod(batch, dtype=int))
+        dt = max(float(dt_s), 0.0)
+        # Every array the compiled loops see is C-contiguous and writeable (one compiled
+        # signature: a read-only view would be another type, compiled again).
+        sys_idx = np.require(sys_idx, np.int64, ["C", "W"])
+        if sys_idx.size and not 0 <= sys_idx.min() <= sys_idx.max() < q:
+            # The compiled loops index the clock states by it, unchecked.
+            raise ValueError(f"sys_idx must lie in 0..{q - 1} (the model's clock states)")
+        # The fast kernel's draws, in its order (_propose_fast).
+        noise_std = rng.standard_normal(x.shape)
+        z = rng.standard_normal(batch + (n, q))
+        pick = rng.random(batch + (n,))
+        a = (model.q_clk_mps * q_scale)**2 * dt + reset_var
+        drift_var = self.drift_var
+        beta = np.zeros(batch)
+        drift_gain = np.zeros(rows)
+        if model.has_drift:
+            # _drift_terms once for the proposal's beta (it does not depend on reset_var),
+            # the drift's gain (_propose_fast) and its variance after the step
+            # (drift_step_var): the same operations on the same values.
+            _, beta_d, c_d = _drift_terms(model, np.broadcast_to(drift_var, batch), dt,
+                                          q_scale, reset_var)
+            beta = beta_d
+            den = a + q * beta_d
+            pos = den > 0
+            safe = np.where(pos, den, 1.0)
+            drift_gain = np.where(pos, c_d / safe, 0.0).reshape(rows)
+            red = np.where(pos, q * c_d * c_d / safe, 0.0)
+            self.drift_var = np.maximum(np.asarray(drift_var, float)
+                                        + model.q_drift_mps2**2 * dt - red, 0.0)
+        sv = np.asarray(pos_sv_ecef_m, dtype=float)
+        s_n = sv.shape[-2]
+
+        def flat(arr, k, dtype=float):  # (rows, *last k axes), broadcast, contiguous
+            tail = arr.shape[arr.ndim - k:]
+            if (arr.shape == batch + tail and arr.dtype == dtype and arr.flags.c_contiguous
+                    and arr.flags.writeable):
+                return arr.reshape((rows,) + tail)
+            out = np.empty((rows,) + tail, dtype)
+            out.reshape(batch + tail)[...] = arr
+            return out
+
+        mask_b = np.broadcast_to(np.asarray(mask, dtype=bool), batch + (s_n,))
+        t = _clock_terms(a, beta, mask_b, sys_idx, q, noise, closed_form=True)
+        mf = flat(mask_b, 1, bool)
+        prf = flat(np.asarray(pr_m, dtype=float), 1)
+        prf = np.where(mf & np.isfinite(prf), prf, 0.0)
+        zeros_qq, zeros_r = np.zeros((rows, q, q)), np.zeros(rows)
+        mats = [zeros_qq if m is None else flat(m, 2)
+                for m in (t.gain, t.chol_p, t.s_inv, t.p_inv)]
+        hls, hlp = (zeros_r if v is None else flat(v, 0)
+                    for v in (t.half_logdet_s, t.half_logdet_p))
+        kind, is_scaled, sigma, nu, eps, mix_scale, const, scale = codes
+        scale_f = flat(np.broadcast_to(scale, (s_n,)), 1)
+        sq1 = math.sqrt(max(dt_s, 0.0))
+        c_pos = model.q_pos_mps * (q_scale * sq1)
+        c_vel = model.q_vel_mps2 * q_scale_vel * sq1
+        alpha = PROPOSAL_DEFENSIVE
+        xf = x.reshape(rows, n, d)
+        log_s, log_p, ll, ll_prod = (np.empty((rows, n)) for _ in range(4))
+        nb.propose_rows(xf, noise_std.reshape(rows, n, d), z.reshape(rows, n, q),
+                        pick.reshape(rows, n), flat(sv, 2), prf, mf, sys_idx, q,
+                        model.clk0, model.kind == "cv", float(dt_s), c_pos, c_vel,
+                        model.has_drift, model.drift, dt, flat(t.informative, 0, bool),
+                        flat(t.chol_s, 2), *mats, hls, hlp, drift_gain, alpha,
+                        math.log1p(-alpha), kind, is_scaled, sigma, nu, eps, mix_scale, const,
+                        scale_f, np.log(scale_f), log_s, log_p, ll, ll_prod)
+        if kind == 1 and not is_scaled:
+            nb.student_t_ll(ll, ll_prod, mf, nu, const)
+        # ln r = log_s - logaddexp(log_p, log_s + ln alpha) (_propose_fast), numpy's
+        # logaddexp written out so that exp and log1p run vectorised.
+        log_b = log_s + math.log(alpha)
+        top = np.maximum(log_p, log_b)
+        log_p -= log_b
+        np.abs(log_p, out=log_p)
+        np.negative(log_p, out=log_p)
+        np.exp(log_p, out=log_p)
+        np.log1p(log_p, out=log_p)
+        log_p += top
+        log_ratio = np.subtract(log_s, log_p, out=log_s)
+        inf = t.informative.reshape(rows)
+        if not inf.all():
+            log_ratio[~inf] = 0.0
+        log_w = (np.require(self.log_w, float, ["C", "W"])
+                 if np.shape(self.log_w) == batch + (n,)
+                 else np.array(np.broadcast_to(self.log_w, batch + (n,)), dtype=float))
+        log_w = log_w.reshape(rows, n)
+        log_norm, n_eff = np.empty(rows), np.empty(rows)
+        est, need = np.empty((rows, d)), np.empty(rows, dtype=bool)
+        nb.normalise_rows(log_w, ll, log_ratio, xf, _LOG_W_FLOOR, float(self.n_threshold),
+                          log_norm, n_eff, est, need)
+        if need.any():  # ll holds the normalised weights
+            rows_idx = np.flatnonzero(need)
+            u = rng.random((rows_idx.size, 1))  # as _resample_fast's draw
+            nb.resample_rows(xf, ll, log_w, rows_idx, u[:, 0])
+        self.particles = x
+        self.log_w = log_w.reshape(batch + (n,))
+        return StepResult(log_norm.reshape(batch), n_eff.reshape(batch),
+                          est.reshape(batch + (d,)), need.reshape(batch))
+
+
+def _noise_codes(noise):
+    """The noise model as :func:`._pf_numba.propose_rows` takes it: ``(kind, scaled,
+    sigma, nu, eps, mix_scale, const, scale)``, or None for a model it does not know
+    (kept for the last few models: a bank steps with the same one epoch after epoch)."""
+    key = id(noise)
+    hit = _NOISE_CODES.get(key)
+    if hit is not None and hit[0] is noise:
+        return hit[1]
+    codes = _noise_codes_of(noise)
+    if len(_NOISE_CODES) >= 8:
+        _NOISE_CODES.clear()
+    _NOISE_CODES[key] = (noise, codes)  # the model kept alive: its id is not reused
+    return codes
+
+
+#: :func:`_noise_codes` of recent noise models, by identity (a Scaled model is not hashable
+#: by value).
+_NOISE_CODES: dict[int, tuple] = {}
+
+
+def _noise_codes_of(noise):
+    base, scale, is_scaled = noise, np.ones(1), False
+    if isinstance(noise, Scaled):
+        base, scale, is_scaled = noise.base, noise.scale, True
+    sigma, nu, eps, mix_scale, const = float(base.sigma_m), 0.0, 0.0, 1.0, 0.0
+    if type(base) is Gaussian:
+        kind = 0
+        const = math.log(sigma) + 0.5 * math.log(2.0 * math.pi)
+    elif type(base) is StudentT:
+        kind, nu = 1, float(base.nu)
+        const = float(special.gammaln((nu + 1) / 2) - special.gammaln(nu / 2)
+                      - 0.5 * math.log(nu * math.pi) - math.log(sigma))
+    elif type(base) is GaussianMixture:
+        kind, eps, mix_scale = 2, float(base.eps), float(base.scale)
+    else:
+        return None
+    return kind, is_scaled, sigma, nu, eps, mix_scale, const, scale
 
 
 # -- the bank of s + 1 filters and its log-likelihood ratios (seed 002 section 2) --------
@@ -1558,7 +1759,8 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     reset_drift : at a restart, restart the drift too and learn it again at the next
         update (:func:`_restart_drift`, :data:`CLOCK_RESET_DRIFT_SD_MPS`); False keeps its
         estimate and variance (an oscillator running through the restart).
-    kernel : the bank's step kernel, ``"fast"`` or ``"reference"`` (:class:`ParticleBank`).
+    kernel : the bank's step kernel, ``"numba"``, ``"fast"`` or ``"reference"``
+        (:class:`ParticleBank`; None: :data:`DEFAULT_KERNEL`).
 
     Returns
     -------
@@ -1910,17 +2112,22 @@ def calibration_key(pos_sv_ecef_m, pos_rx_ecef_m, sys_idx, noise, model: Process
 @functools.lru_cache(maxsize=1)
 def calibration_code_version() -> str:
     """A fingerprint of what a calibrated ``tau`` depends on besides its key's fields: the
-    source of the filters (this module), of the noise models and of the least-squares
-    start, and the numpy version (its random streams). 16 hex digits of a SHA-256."""
+    source of the filters (this module and its compiled kernels, :mod:`._pf_numba`, read
+    as a file: numba is not imported for it), of the noise models and of the
+    least-squares start, and the numpy version (its random streams). 16 hex digits of a
+    SHA-256. (The kernels agree to rounding, so the kernel that ran is not part of it.)"""
     import hashlib
     import sys
+    from pathlib import Path
 
     from .. import lsq
     from ..measure import noise as noise_module
 
     h = hashlib.sha256(np.__version__.encode())
-    for mod in (sys.modules[__name__], noise_module, lsq):
-        with open(mod.__file__, "rb") as f:
+    here = sys.modules[__name__].__file__
+    for path in (here, str(Path(here).with_name("_pf_numba.py")), noise_module.__file__,
+                 lsq.__file__):
+        with open(path, "rb") as f:
             h.update(f.read())
     return h.hexdigest()[:16]
 
