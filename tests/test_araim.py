@@ -6,6 +6,8 @@ Reference values: Blanch et al., ION GNSS 2012 ("B2012"), Appendix J worked exam
 
 from __future__ import annotations
 
+import importlib
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -23,6 +25,7 @@ from raimcore.araim import (
     sigma_user_add_m,
     sigma_user_ed259a_m,
 )
+from raimcore.araim.modes import restrict_modes
 
 one_cm = 1e-2
 one_mm = 1e-3
@@ -713,3 +716,133 @@ def test_property_scaling_and_fault_free_bound(seed, c):
         np.testing.assert_allclose(getattr(r1, f), c * getattr(r0, f), rtol=1e-8)
     floor = q_inv(r0.phmi_vert_alloc / 2) * r0.sigma_m[2] + r0.bias_m[2]
     assert r0.vpl_m >= floor - 1e-9
+
+
+# ------------------------------------------------- fast kernel vs the reference path
+# ``raimcore.araim.mhss._mhss(..., reference=True)`` is the plain numpy path as first
+# written (``raimcore.araim._kernel_reference``: every exclusion candidate evaluated on its
+# own, every protection level searched, fault-mode lists merged row by row). The fast
+# path must give the same statuses, alarms, exclusions, availability decisions and
+# ``*_set_by``, and the same numbers to rounding (well inside one micrometre).
+one_um = 1e-6
+
+_mhss_module = importlib.import_module("raimcore.araim.mhss")
+
+
+def random_four_systems(rng, shape, n_sat=20):
+    """Random skies of 4 constellations with priors high enough for three-satellite
+    modes and constellation-plus-satellite modes (every kernel path)."""
+    cons = np.arange(n_sat) % 4
+    az = rng.uniform(0, 360, shape + (n_sat,))
+    el = rng.uniform(-10, 85, shape + (n_sat,))
+    g = geometry(az, el, cons, 4)
+    g[el < 5] = np.nan
+    s = rng.uniform(0.8, 3.0, shape + (n_sat,))
+    return dict(G=g, sigma_int_m=s, sigma_acc_m=0.8 * s, b_int_m=np.full(n_sat, 0.5),
+                b_acc_m=np.full(n_sat, 0.1), p_sat=np.full(n_sat, 1e-4),
+                p_const=np.array([1e-8, 2e-4, 1e-4, 3e-4]),
+                y=rng.normal(0, 2, shape + (n_sat,)))
+
+
+def random_four_systems_high_priors(rng, shape):
+    """:func:`random_four_systems` with priors high enough for modes of a constellation
+    plus two satellites (the two-satellite down-date of a constellation's solution)."""
+    args = random_four_systems(rng, shape)
+    return dict(args, p_sat=np.full(20, 3e-4), p_const=np.array([1e-3, 2e-3, 1e-3, 3e-3]))
+
+
+def assert_same_result(fast, ref, atol=one_um):
+    """Every field of two MhssResults: floats to ``atol`` (same infinities and NaNs),
+    everything else equal."""
+    for f in fast.__dataclass_fields__:
+        a, b = getattr(fast, f), getattr(ref, f)
+        if f == "modes" and a is not None:
+            assert_same_result(a, b, atol)
+        elif isinstance(a, np.ndarray) and a.dtype.kind == "f":
+            np.testing.assert_allclose(a, b, rtol=0, atol=atol, err_msg=f)
+        elif isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(a, b, err_msg=f)
+        else:
+            assert (a is None) == (b is None) and (a is None or a == b), f
+
+
+def call_ref(args, **kw):
+    a = dict(args)
+    return _mhss_module._mhss(a.pop("G"), a.pop("sigma_int_m"), a.pop("sigma_acc_m"),
+                              a.pop("b_int_m"), a.pop("b_acc_m"), a.pop("p_sat"),
+                              a.pop("p_const"), reference=True, **a, **kw)
+
+
+@pytest.mark.parametrize("make, kw", [
+    (random_batch, {"fde": True}),
+    (random_four_systems, {"fde": True}),
+    (random_four_systems, {"fde": True, "max_pmd": True, "n_es_int": 25.0,
+                           "t_exp_over_mfd": 150.0 / 3600.0}),
+    (random_four_systems_high_priors, {"fde": True}),
+    (random_four_systems, {"fde": True, "rules": B2012}),
+    (random_four_systems, {"fde": True, "fde_const": False, "return_modes": False}),
+    (random_four_systems, {}),
+])
+def test_fast_path_equals_reference_path(make, kw):
+    rng = np.random.default_rng(17)
+    args = make(rng, (3, 4))
+    args["G"][0, 1, 5:] = np.nan  # an epoch whose candidates leave 3 satellites or fewer
+    vis = np.all(np.isfinite(args["G"]), axis=-1)
+    first = np.argmax(vis, axis=-1)  # a 60 m fault on the first satellite in view, rows 1-2
+    b, e = np.meshgrid(np.arange(1, 3), np.arange(4), indexing="ij")
+    args["y"][b, e, first[1:]] += 60.0
+    fast, ref = call(args, **kw), call_ref(args, **kw)
+    assert_same_result(fast, ref)
+    assert np.any(fast.alarm)
+    if kw.get("fde"):
+        assert np.any(fast.vpl_set_by >= 0) and np.any(fast.excluded_sat >= 0)
+    no_y = {k: v for k, v in args.items() if k != "y"}
+    assert_same_result(call(no_y, **kw), call_ref(no_y, **kw))
+
+
+def test_fast_mode_merge_equals_row_merge():
+    cons = np.arange(20) % 4
+    p_sat, p_const = np.full(20, 1e-4), np.array([1e-8, 2e-4, 1e-4, 3e-4])
+    for kw in ({}, {"rules": B2012}, {"fde": True, "p_exc_thres": 9e-7}):
+        fast = determine_modes(cons, p_sat, p_const, **kw)
+        ref = determine_modes(cons, p_sat, p_const, reference=True, **kw)
+        for f in ("removed", "consts", "p_inst", "p_exp"):
+            np.testing.assert_array_equal(getattr(fast, f), getattr(ref, f), err_msg=f)
+        assert len(fast) > 40
+        for i in (0, 7, 19):
+            keep = np.arange(20) != i
+            a, b = restrict_modes(fast, keep), restrict_modes(fast, keep, reference=True)
+            for f in ("removed", "consts", "p_inst", "p_exp"):
+                np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+            assert len(a) < len(fast)  # modes of satellite i merged
+
+
+def test_fast_path_equals_reference_on_the_four_system_recording(shared_data, monkeypatch):
+    """The real GPS + GAL + BDS + GLO recording (ESBC00DNK, 2020-06-25), 10 min at 30 s:
+    the kernel's inputs as the ``araim`` algorithm builds them (with exclusion), fast and
+    reference paths."""
+    from raimcore import araim as kernel_pkg
+    from raimcore.algorithms import araim as algo
+    from raimcore.pipeline import run_scenario
+    from raimcore.scenario import load_scenario
+
+    captured = []
+    real = kernel_pkg.mhss
+
+    def spy(*a, **k):
+        captured.append((a, k))
+        return real(*a, **k)
+
+    monkeypatch.setattr(algo.kernel, "mhss", spy)
+    s = load_scenario("default").replace(
+        source="rinex", obs=str(shared_data / "ESBC00DNK_R_20201770000_02H_30S_MO.rnx"),
+        nav=[str(shared_data / "ESBC00DNK_R_20201770000_01D_MN.rnx")],
+        systems=["GPS", "GAL", "BDS", "GLO"], faults=[], duration_s=600.0, step_s=30.0,
+        algorithm="araim")
+    run_scenario(s)
+    (a, k), = captured
+    assert a[0].shape[-2] >= 30 and a[0].shape[-1] == 7 and k["fde"]
+    fast = real(*a, **k)
+    ref = _mhss_module._mhss(*a, reference=True, **k)
+    assert_same_result(fast, ref)
+    assert np.all(fast.status == "ok") and fast.modes.valid.sum(axis=1).min() > 300

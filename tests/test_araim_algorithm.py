@@ -354,3 +354,36 @@ def test_the_araim_scenario_report_holds():
     good = {s: {"sigma_ura_m": 1.0, "sigma_ure_m": 0.66} for s in GPS_GAL}
     lpv = run_scenario("araim", ism=good, faults=[]).summary
     assert lpv.vpl_mean_m < 25.0 and lpv.pl_availability.value == 1.0
+
+
+def test_all_mode_names_equal_the_per_mode_names():
+    """The fault-mode panel's labels (every mode of every epoch, named in packed blocks)
+    equal :func:`_mode_names` called mode by mode, on a run whose GAL constellation mode
+    and satellite modes all appear."""
+    from types import SimpleNamespace
+
+    from raimcore.algorithms import araim as adapter
+
+    rng = np.random.default_rng(3)
+    n_sat, cons = 13, np.array([0] * 7 + [1] * 6)
+    el = rng.uniform(DEG(8), DEG(80), (70, n_sat))
+    az = rng.uniform(0, 2 * np.pi, (70, n_sat))
+    u = np.stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)], -1)
+    g = np.concatenate([-u, np.broadcast_to(np.eye(2)[cons], (70, n_sat, 2))], -1)
+    g[rng.random((70, n_sat)) < 0.15] = np.nan
+    s = np.full(n_sat, 1.5)
+    res = kernel.mhss(g, s, s, np.zeros(n_sat), np.zeros(n_sat), np.full(n_sat, 1e-5),
+                      np.array([1e-8, 2e-4]))
+    data = SimpleNamespace(systems=("GPS", "GAL"), sys_idx=cons,
+                           sat_names=tuple(f"S{i:02d}" for i in range(n_sat)))
+    old_block = adapter._NAME_BLOCK
+    try:
+        adapter._NAME_BLOCK = 5  # several blocks, names shared across them
+        got = adapter._all_mode_names(res.modes, data)
+    finally:
+        adapter._NAME_BLOCK = old_block
+    n_ep, k_all = res.modes.p_inst.shape
+    want = np.stack([adapter._mode_names(res.modes, np.full(n_ep, k), data)
+                     for k in range(1, k_all)], axis=1)
+    np.testing.assert_array_equal(got, want)
+    assert "GAL" in set(want.ravel()) and "S03" in set(want.ravel())

@@ -339,9 +339,7 @@ def _mode_extras(modes, avail, data: Measurements) -> dict[str, np.ndarray]:
     monitorable mode at an available epoch. Empty without the kernel's mode table."""
     if modes is None or modes.sats.shape[1] <= 1:
         return {}
-    n_ep, k_all = modes.p_inst.shape
-    labels = np.stack([_mode_names(modes, np.full(n_ep, k), data)
-                       for k in range(1, k_all)], axis=1)
+    labels = _all_mode_names(modes, data)
     mon = modes.monitored[:, 1:] & avail[:, None]
     sep = modes.separation_m[:, 1:] if modes.separation_m is not None else None
     return {
@@ -371,6 +369,38 @@ def _mode_names(modes, index, data: Measurements) -> np.ndarray:
     joined = np.array(["+".join(n for n, m in zip(labels, row, strict=True) if m)
                        for row in uniq], dtype=object)
     return joined[inverse.reshape(-1)]
+
+
+#: Modes named per block in :func:`_all_mode_names` (bounds its (E, block, n) masks).
+_NAME_BLOCK = 64
+
+
+def _all_mode_names(modes, data: Measurements) -> np.ndarray:
+    """:func:`_mode_names` of every mode ``1..K-1`` of every epoch, ``(E, K - 1)``: the
+    masks of a block of modes are packed to bytes and each distinct one is named once
+    (a recording with 800 modes and thousands of epochs has a few thousand names)."""
+    n_ep, k_all = modes.p_inst.shape
+    out = np.empty((n_ep, max(k_all - 1, 0)), dtype=object)
+    labels = tuple(data.systems) + tuple(data.sat_names)
+    named: dict[bytes, str] = {}
+    for k0 in range(1, k_all, _NAME_BLOCK):
+        ks = slice(k0, min(k_all, k0 + _NAME_BLOCK))
+        consts = modes.consts[:, ks]
+        sats = modes.sats[:, ks] & ~consts[..., data.sys_idx]
+        mask = np.concatenate([consts, sats], axis=-1)
+        flat = mask.reshape(-1, mask.shape[-1])
+        packed = np.ascontiguousarray(np.packbits(flat, axis=1))
+        keys = packed.view(np.dtype((np.void, packed.shape[1]))).reshape(-1)
+        uniq, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        names = []
+        for u, i in zip(uniq, first, strict=True):
+            b = u.tobytes()
+            if b not in named:
+                named[b] = "+".join(n for n, m in zip(labels, flat[i], strict=True) if m)
+            names.append(named[b])
+        out[:, ks.start - 1:ks.stop - 1] = np.array(names, dtype=object)[
+            inverse.reshape(-1)].reshape(n_ep, ks.stop - ks.start)
+    return out
 
 
 def _single_sat(modes, index) -> np.ndarray:

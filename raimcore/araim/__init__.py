@@ -109,15 +109,27 @@ their constellation and probabilities) and on the constellation probabilities, n
 geometry. Epochs are grouped by that pattern (satellites in view compacted in their
 original order), each pattern's list is determined once (cached), and every
 geometry-dependent step runs vectorised over the epochs of a group: subset solutions by
-closed-form down-dates of the all-in-view solution for one- and two-satellite modes, by
-normal equations for the others, thresholds, the protection-level bisection on all epochs
-and axes at once, EMT. No Python loop runs over epochs.
+closed-form down-dates of the all-in-view solution for one- and two-satellite modes (and of
+a constellation's solution for a constellation plus one or two satellites), by normal
+equations for the others, thresholds, the protection-level bisection on all epochs and axes
+at once, EMT. No Python loop runs over epochs.
+
+With ``fde``, the exclusion candidates of a pattern whose restricted mode lists coincide
+(after compaction: same list, constellations and clock columns, e.g. every satellite of one
+constellation with the same priors) run as one batched evaluation, candidates as an extra
+batch axis; the candidates' lists are determined once per pattern. Their protection levels
+are searched only where they can be the largest: each search stays inside MAAST's bracket,
+so a candidate whose upper end lies below another evaluation's lower end (or value) can
+set neither the PL nor ``*_set_by`` and is not searched. Results equal, decision for
+decision, those of the plain per-candidate path kept as a reference
+(``raimcore.araim.mhss._mhss(..., reference=True)``, ``tests/test_araim.py``).
 
 Modules
 -------
 mhss        the public kernel and its result classes
 modes       fault-mode determination (sections 3-4), usable on its own
 kernel      subset solutions, thresholds, protection levels, EMT (sections 5-8)
+_kernel_reference  the same as first written (the reference path of the agreement tests)
 error_model nominal tropo and airborne error models (section 2), MAAST's example ISM
 _params     the parameter table (declare once: defaults, ranges, units, help)
 

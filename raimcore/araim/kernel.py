@@ -16,10 +16,19 @@ so the one- and two-satellite modes (nearly all of them) cost a 1x1 or 2x2 inver
 their statistics need no ``(3, n)`` matrix per mode: ``sigma_q^(k)2 = sigma_q^(0)2 +
 a_q M_bb C_int,b a_q^T`` (the cross term vanishes because ``M C_int`` is symmetric),
 ``sigma_ss,q^(k)2 = a_q (M diag(C_acc) M^T)_bb a_q^T`` with ``a = S0[:3, b] M_bb^-1``, and
-the separations are ``-a r_b``. Modes removing three or more satellites, or the last
-satellite(s) of a constellation (whose clock column then leaves the model), are solved from
-their normal equations. ``tests/test_araim.py`` checks every ``S^(k)`` against
-``numpy.linalg.pinv`` of the weighted kept rows.
+the separations are ``-a r_b``. A mode removing a whole constellation plus one or two
+other satellites is the same down-date applied to that constellation's own subset solution
+(solved once per constellation, :func:`_nested`). The other modes (three or more single
+satellites, several constellations, a constellation alone) are solved from their normal
+equations. ``tests/test_araim.py`` checks every ``S^(k)`` against ``numpy.linalg.pinv`` of
+the weighted kept rows.
+
+Protection levels are searched by MAAST's half-interval search from MAAST's bracket
+(:func:`pl_bracket`, :func:`pl_bisect`); the bracket alone bounds the result, which lets
+:func:`raimcore.araim.mhss` skip the searches of exclusion candidates that cannot give the
+largest PL. ``raimcore.araim._kernel_reference`` keeps this module as first written (the
+reference path of the agreement tests); both give the same decisions and the same numbers
+to rounding.
 """
 
 from __future__ import annotations
@@ -29,7 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr, ndtri
 
-__all__ = ["COND_MAX", "RATIO_MIN", "allinview", "subset_stats", "solve_pl", "evaluate"]
+__all__ = ["COND_MAX", "RATIO_MIN", "allinview", "subset_stats", "solve_pl", "pl_bracket",
+           "pl_bisect", "PlBracket", "evaluate"]
 
 #: All-in-view geometry is singular when cond(G^T W G) >= 1e7 (``compute_subset_solutions.m``).
 COND_MAX = 1e7
@@ -41,6 +51,54 @@ RATIO_MIN = 1e-10
 #: Bisection steps when ``pl_max_iter = 0`` (the interval halves each step: 200 steps
 #: reach the resolution of a double from any bracket).
 _MAX_STEPS = 200
+
+
+def _wsum(a, w):
+    """``sum_n a[e, k, q, n] w[e, n]`` for ``a`` (E, K, 3, n), ``w`` (E, n)."""
+    return np.einsum("ekqn,en->ekq", a, w)
+
+
+#: Elements of one block of the ``|S^(k)|`` temporaries of :func:`_abs_wsum` (about 0.5 MB:
+#: they stay in cache; a speed setting, not a result).
+_BLOCK_ELEMENTS = 65536
+
+
+def _abs_wsum(base, a, mrow, w):
+    """``sum_n w[e, n] |base[e, q, n] - a[e, k, q] mrow[e, k, n]|`` (E, K, 3), for the bias
+    of one-satellite down-dates (``base`` = ``S0[:3]`` (E, 3, n)), built in blocks of
+    epochs so that the (block, K, 3, n) temporary stays in cache."""
+    e, k, _ = a.shape
+    n = mrow.shape[-1]
+    out = np.empty((e, k, 3))
+    step = max(1, _BLOCK_ELEMENTS // max(1, k * 3 * n))
+    for i in range(0, e, step):
+        sl = slice(i, i + step)
+        t = a[sl, :, :, None] * mrow[sl, :, None, :]
+        np.subtract(base[sl, None], t, out=t)
+        out[sl] = np.einsum("ekqn,en->ekq", np.abs(t, out=t), w[sl])
+    return out
+
+
+def _small_matmul(x, inv):
+    """``x @ inv`` for ``x`` (..., 3, r), ``inv`` (..., r, r), r in (1, 2), written out
+    (numpy's matmul loops slowly over millions of tiny matrices)."""
+    if x.shape[-1] == 1:
+        return x * inv
+    out = np.empty(x.shape)
+    x0, x1 = x[..., 0], x[..., 1]
+    out[..., 0] = x0 * inv[..., None, 0, 0] + x1 * inv[..., None, 1, 0]
+    out[..., 1] = x0 * inv[..., None, 0, 1] + x1 * inv[..., None, 1, 1]
+    return out
+
+
+def _quad(amat, q):
+    """``a_q Q a_q^T`` for ``amat`` (..., 3, r) and ``q`` (..., r, r), r in (1, 2),
+    written out (the einsum ``ekqa,ekab,ekqb->ekq``)."""
+    if amat.shape[-1] == 1:
+        return amat[..., 0] ** 2 * q[..., None, 0, 0]
+    a0, a1 = amat[..., 0], amat[..., 1]
+    return (a0 * a0 * q[..., None, 0, 0] + a0 * a1 * (q[..., None, 0, 1] + q[..., None, 1, 0])
+            + a1 * a1 * q[..., None, 1, 1])
 
 
 def q_inv(p):
@@ -65,20 +123,54 @@ class AllInView:
     dx: np.ndarray | None  # (E, 3) S0 y
 
 
+#: Normal matrices with ``tr(N) tr(N^-1)`` below ``COND_MAX / _COND_MARGIN`` are regular
+#: without an eigen-decomposition (``cond(N) <= tr(N) tr(N^-1)`` for a positive definite N).
+_COND_MARGIN = 16.0
+
+
+def _regular(n0):
+    """``cond(N) < COND_MAX`` and ``N`` positive definite, per matrix (section 5), and the
+    inverses if they could all be formed (else None). Matrices that the trace bound
+    ``cond(N) <= tr(N) tr(N^-1)`` clears with a wide margin skip ``eigvalsh``; the rest
+    get the eigenvalue test as before, so the decisions are the same."""
+    n_inv = None
+    try:
+        with np.errstate(all="ignore"):
+            n_inv = np.linalg.inv(n0)
+    except np.linalg.LinAlgError:
+        n_inv = None
+    sure = np.zeros(n0.shape[0], bool)
+    if n_inv is not None:
+        tr = np.trace(n0, axis1=-2, axis2=-1)
+        tri = np.trace(n_inv, axis1=-2, axis2=-1)
+        with np.errstate(invalid="ignore", over="ignore"):
+            sure = (np.isfinite(tri) & (tri > 0.0) & (tr > 0.0)
+                    & (tr * tri < COND_MAX / _COND_MARGIN))
+    regular = sure.copy()
+    rest = np.flatnonzero(~sure)
+    if rest.size:
+        lam = np.linalg.eigvalsh(n0[rest])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cond = lam[..., -1] / lam[..., 0]
+        regular[rest] = (lam[..., 0] > 0.0) & (cond < COND_MAX)
+    return regular, n_inv
+
+
 def allinview(g, cint, cacc, bnom, y=None) -> AllInView:
     """Weighted least squares with ``W = C_int^-1`` over every satellite (section 5)."""
     e, n, m = g.shape
     gw = g / cint[..., None]
     n0 = np.swapaxes(gw, -1, -2) @ g
     enough = n >= max(m, 4)
-    lam = np.linalg.eigvalsh(n0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cond = lam[..., -1] / lam[..., 0]
-    regular = (lam[..., 0] > 0.0) & (cond < COND_MAX)
+    regular, n_inv = _regular(n0)
     ok = np.asarray(enough & regular)
     reason = np.where(ok, 0, np.where(enough, 2, 1))
     n0 = np.where(ok[:, None, None], n0, np.eye(m))
-    s0 = np.linalg.inv(n0) @ np.swapaxes(gw, -1, -2)
+    if n_inv is None:
+        n_inv = np.linalg.inv(n0)
+    else:  # the inverse of each regular matrix is the same whatever the batch
+        n_inv = np.where(ok[:, None, None], n_inv, np.eye(m))
+    s0 = n_inv @ np.swapaxes(gw, -1, -2)
     p0 = s0[:, :3, :]
     mres = np.eye(n) - g @ s0
     sigma = np.sqrt(np.einsum("eqn,en->eq", p0 * p0, cint))
@@ -145,6 +237,12 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
     any_bnom = bool(np.any(bnom > 0.0))
     any_bcont = bool(np.any(bcont > 0.0))
     x_acc = None
+    # M diag(C_acc) M^T, once per epoch: its 2 x 2 blocks give sigma_ss of two-satellite
+    # modes (its diagonal, for one-satellite modes, from one matrix-vector product).
+    down = (size >= 1) & (size <= 2) & ~emptied
+    q_acc_full = ((av.m * cacc[:, None, :]) @ np.swapaxes(av.m, -1, -2)
+                  if np.any(down & (size == 2)) else None)
+    q_acc_diag = (av.m * av.m) @ cacc[..., None] if np.any(down & (size == 1)) else None
     if need_acc:  # M diag(C_acc) S0_3^T, for the accuracy sigma of down-dated subsets
         x_acc = np.einsum("eij,ej->ei", av.m, cacc * av.p0[:, 2, :])
 
@@ -152,8 +250,9 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
         ks = np.flatnonzero((size == r) & ~emptied)
         if ks.size == 0:
             continue
-        idx = np.array([np.flatnonzero(removed[k]) for k in ks])  # (Kr, r)
-        st = _downdate(av, idx, cint, cacc, bnom, bcont, any_bnom, any_bcont, x_acc, y)
+        idx = np.nonzero(removed[ks])[1].reshape(ks.size, r)  # (Kr, r), ascending
+        st = _downdate(av, idx, cint, q_acc_full if r == 2 else q_acc_diag, bnom, bcont,
+                       any_bnom, any_bcont, x_acc, y)
         sigma[:, ks], bias[:, ks], sigma_ss[:, ks], bias_ss[:, ks] = st[:4]
         ratio[:, ks] = st[4]
         if need_acc:
@@ -162,8 +261,35 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
             sep[:, ks] = st[6]
 
     ks = np.flatnonzero((size >= 1) & ~(((size == 1) | (size == 2)) & ~emptied))
+    # A whole constellation plus one or two satellites: down-dates of the constellation's
+    # subset solution (:func:`_nested`); the rest from their normal equations.
+    member = cons[None, :] == np.arange(m - 3)[:, None]  # (c, n)
+    gone = ~present[ks]  # (Kd, c) constellations emptied
+    j_of = np.argmax(gone, axis=1)
+    extra = removed[ks] & ~member[j_of]
+    r_extra = extra.sum(axis=1)
+    nest = (gone.sum(axis=1) == 1) & (r_extra >= 1) & (r_extra <= 2)
+    for r in (1, 2):
+        kn = ks[nest & (r_extra == r)]
+        if kn.size == 0:
+            continue
+        jn = j_of[nest & (r_extra == r)]
+        bases, jb = np.unique(jn, return_inverse=True)
+        base_present = np.ones((len(bases), m - 3), bool)
+        base_present[np.arange(len(bases)), bases] = False
+        idx = np.nonzero(extra[nest & (r_extra == r)])[1].reshape(kn.size, r)
+        st = _nested(av, g, cint, cacc, bnom, bcont, member[bases], base_present,
+                     jb.reshape(-1), idx, need_acc, y, any_bnom, any_bcont)
+        sigma[:, kn], bias[:, kn], sigma_ss[:, kn], bias_ss[:, kn] = st[:4]
+        ratio[:, kn] = st[4]
+        if need_acc:
+            sacc[:, kn] = st[5]
+        if sep is not None:
+            sep[:, kn] = st[6]
+    ks = ks[~nest]
     if ks.size:
-        st = _direct(av, g, cint, cacc, bnom, bcont, removed[ks], present[ks], need_acc, y)
+        st = _direct(av, g, cint, cacc, bnom, bcont, removed[ks], present[ks], need_acc, y,
+                     any_bnom, any_bcont)
         sigma[:, ks], bias[:, ks], sigma_ss[:, ks], bias_ss[:, ks] = st[:4]
         ratio[:, ks] = st[4]
         if need_acc:
@@ -183,71 +309,87 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
     return SubsetStats(sigma, bias, sigma_ss, bias_ss, sacc, mon, sep)
 
 
-def _downdate(av, idx, cint, cacc, bnom, bcont, any_bnom, any_bcont, x_acc, y):
-    """Modes removing the satellites ``idx`` (Kr, r), r in (1, 2), no clock lost."""
+def _downdate(av, idx, cint, q_acc, bnom, bcont, any_bnom, any_bcont, x_acc, y):
+    """Modes removing the satellites ``idx`` (Kr, r), r in (1, 2), no clock lost;
+    ``q_acc`` is ``M diag(C_acc) M^T``: (E, n, n) for r = 2, its diagonal (E, n, 1) for
+    r = 1. Written out per column of ``a = S0[:3, b] M_bb^-1`` (each (E, 3, Kr)): numpy
+    handles millions of 2 x 2 products faster as whole-array arithmetic."""
     kr, r = idx.shape
     mres, p0 = av.m, av.p0
-    mbb = mres[:, idx[:, :, None], idx[:, None, :]]  # (E, Kr, r, r)
+    ii = [idx[:, c] for c in range(r)]
+    mbb = [[mres[:, ia, ib] for ib in ii] for ia in ii]  # M_bb entries, each (E, Kr)
     if r == 1:
-        det = mbb[..., 0, 0]
+        det = mbb[0][0]
         good = det > RATIO_MIN
-        inv = (1.0 / np.where(good, det, 1.0))[..., None, None]
+        inv = [[1.0 / np.where(good, det, 1.0)]]
+        qa = [[q_acc[:, ii[0], 0]]]
     else:
-        a_, b_, c_, d_ = mbb[..., 0, 0], mbb[..., 0, 1], mbb[..., 1, 0], mbb[..., 1, 1]
-        det = a_ * d_ - b_ * c_
+        det = mbb[0][0] * mbb[1][1] - mbb[0][1] * mbb[1][0]
         good = det > RATIO_MIN
-        s = 1.0 / np.where(good, det, 1.0)
-        inv = np.stack([np.stack([d_ * s, -b_ * s], -1), np.stack([-c_ * s, a_ * s], -1)], -2)
-    p0b = np.moveaxis(p0[:, :, idx], 1, 2)  # (E, Kr, 3, r)
-    amat = p0b @ inv  # (E, Kr, 3, r)
+        sc = 1.0 / np.where(good, det, 1.0)
+        inv = [[mbb[1][1] * sc, -mbb[0][1] * sc], [-mbb[1][0] * sc, mbb[0][0] * sc]]
+        qa = [[q_acc[:, ia, ib] for ib in ii] for ia in ii]
+    x = [p0[:, :, ia] for ia in ii]  # S0[:3, b] columns, (E, 3, Kr)
+    if r == 1:
+        a = [x[0] * inv[0][0][:, None, :]]
+    else:
+        a = [x[0] * inv[0][c][:, None, :] + x[1] * inv[1][c][:, None, :] for c in range(2)]
     # Q_int = M C_int (symmetric): (Q_int)_bb = M_bb * C_int,b (columns).
-    q_int = mbb * cint[:, idx][:, :, None, :]
-    if r == 1:  # (M diag(C_acc) M^T)_ii from one matrix-vector product per epoch
-        q_acc = ((mres * mres) @ cacc[..., None])[:, idx[:, 0], 0][..., None, None]
-    else:
-        mb = mres[:, idx, :]  # (E, Kr, r, n)
-        q_acc = np.einsum("ekal,ekbl,el->ekab", mb, mb, cacc)
-    var_add = np.einsum("ekqa,ekab,ekqb->ekq", amat, q_int, amat)
-    sigma = np.sqrt(av.sigma[:, None, :] ** 2 + np.maximum(var_add, 0.0))
-    sigma_ss = np.sqrt(np.maximum(np.einsum("ekqa,ekab,ekqb->ekq", amat, q_acc, amat), 0.0))
+    qi = [[mbb[ia][ib] * cint[:, ii[ib]] for ib in range(r)] for ia in range(r)]
+
+    def quad(cols, q, axis):  # sum_ab a_a q_ab a_b, as _quad
+        if r == 1:
+            return cols[0] * cols[0] * q[0][0][axis]
+        return (cols[0] * cols[0] * q[0][0][axis] + cols[0] * cols[1]
+                * (q[0][1][axis] + q[1][0][axis]) + cols[1] * cols[1] * q[1][1][axis])
+
+    full = (slice(None), None, slice(None))  # (E, Kr) -> (E, 1, Kr)
+    var_add = quad(a, qi, full)
+    sigma = np.sqrt(av.sigma[:, :, None] ** 2 + np.maximum(var_add, 0.0))
+    sigma_ss = np.sqrt(np.maximum(quad(a, qa, full), 0.0))
+    sigma, sigma_ss = np.swapaxes(sigma, 1, 2), np.swapaxes(sigma_ss, 1, 2)  # (E, Kr, 3)
     if r == 1:
-        mrow = mres[:, idx[:, 0], :]  # (E, Kr, n)
+        a0 = np.swapaxes(a[0], 1, 2)  # (E, Kr, 3)
+        mrow = mres[:, ii[0], :]  # (E, Kr, n)
         if any_bcont:
-            bias_ss = np.abs(amat[..., 0]) * (np.abs(mrow) @ bcont[:, :, None])
+            bias_ss = np.abs(a0) * (np.abs(mrow) @ bcont[:, :, None])
         else:
-            bias_ss = np.zeros_like(sigma)
-        if any_bnom:
-            s_k = p0[:, None, :, :] - amat[..., 0][..., None] * mrow[:, :, None, :]
-            bias = np.einsum("ekqn,en->ekq", np.abs(s_k), bnom)
+            bias_ss = np.zeros(sigma.shape)
+        if any_bnom:  # |S^(k)| = |S0 - a m_row|, the largest temporary: in blocks
+            bias = _abs_wsum(p0, a0, mrow, bnom)
         else:
-            bias = np.zeros_like(sigma)
+            bias = np.zeros(sigma.shape)
     else:
-        mb = mres[:, idx, :]
-        ds = amat @ mb if (any_bnom or any_bcont) else None  # (E, Kr, 3, n) = S0 - S^(k)
-        bias_ss = (np.einsum("ekqn,en->ekq", np.abs(ds), bcont) if any_bcont
-                   else np.zeros_like(sigma))
-        bias = (np.einsum("ekqn,en->ekq", np.abs(p0[:, None] - ds), bnom) if any_bnom
-                else np.zeros_like(sigma))
+        if any_bnom or any_bcont:
+            amat = np.swapaxes(np.stack(a, axis=-1), 1, 2)  # (E, Kr, 3, 2)
+            ds = amat @ mres[:, idx, :]  # (E, Kr, 3, n) = S0 - S^(k)
+        bias_ss = _wsum(np.abs(ds), bcont) if any_bcont else np.zeros(sigma.shape)
+        bias = _wsum(np.abs(p0[:, None] - ds), bnom) if any_bnom else np.zeros(sigma.shape)
     sacc = None
     if x_acc is not None:
-        a3 = amat[:, :, 2, :]  # (E, Kr, r)
-        var = (av.sigma_acc[:, None, 2] ** 2 - 2.0 * np.sum(a3 * x_acc[:, idx], axis=-1)
-               + np.einsum("eka,ekab,ekb->ek", a3, q_acc, a3))
+        a3 = [c[:, 2, :] for c in a]  # (E, Kr)
+        cross = sum(c * x_acc[:, ia] for c, ia in zip(a3, ii, strict=True))
+        var = av.sigma_acc[:, None, 2] ** 2 - 2.0 * cross + quad(a3, qa, ...)
         sacc = np.sqrt(np.maximum(var, 0.0))
     sep = None
     if y is not None:
-        sep = -np.einsum("ekqa,eka->ekq", amat, av.resid[:, idx])
+        res = av.resid
+        sep = -sum(c * res[:, None, ia] for c, ia in zip(a, ii, strict=True))
+        sep = np.swapaxes(sep, 1, 2)
     ratio = np.where(good, det, 0.0)
     return sigma, bias, sigma_ss, bias_ss, ratio, sacc, sep
 
 
-def _direct(av, g, cint, cacc, bnom, bcont, removed, present, need_acc, y):
-    """Modes solved from their normal equations (clock columns of emptied
-    constellations replaced by the all-in-view diagonal, so they decouple)."""
+def _solve_subsets(av, g, cint, removed, present, rows: int):
+    """Subset solutions from their normal equations (clock columns of emptied
+    constellations replaced by the all-in-view diagonal, so they decouple): the first
+    ``rows`` rows of ``S^(k)`` (E, Kd, rows, n) and ``det(N_k)/det(N_0)`` (E, Kd), 0 where
+    not above :data:`RATIO_MIN`."""
     e, n, m = g.shape
     keep = (~removed).astype(float)  # (Kd, n)
     gw = g / cint[..., None]  # (E, n, m)
-    nk = np.einsum("eni,kn,enj->ekij", gw, keep, g)  # (E, Kd, m, m)
+    gtw_k = np.swapaxes(gw, -1, -2)[:, None] * keep[None, :, None, :]  # (E, Kd, m, n)
+    nk = gtw_k @ g[:, None]  # (E, Kd, m, m)
     diag0 = np.diagonal(av.n0, axis1=-2, axis2=-1)  # (E, m)
     absent = np.concatenate([np.ones((len(removed), 3), bool), present], axis=1) == 0
     for j in range(m):
@@ -261,16 +403,189 @@ def _direct(av, g, cint, cacc, bnom, bcont, removed, present, need_acc, y):
     ratio = np.where(np.isfinite(ratio), ratio, 0.0)
     good = ratio > RATIO_MIN
     nk = np.where(good[..., None, None], nk, np.eye(m))
-    gtw_k = np.swapaxes(gw, -1, -2)[:, None] * keep[None, :, None, :]  # (E, Kd, m, n)
-    s_k = np.linalg.inv(nk)[..., :3, :] @ gtw_k
+    return np.linalg.inv(nk)[..., :rows, :] @ gtw_k, np.where(good, ratio, 0.0)
+
+
+def _direct(av, g, cint, cacc, bnom, bcont, removed, present, need_acc, y, any_bnom=True,
+            any_bcont=True):
+    """Modes solved from their normal equations (:func:`_solve_subsets`)."""
+    s_k, ratio = _solve_subsets(av, g, cint, removed, present, 3)
     ds = s_k - av.p0[:, None]  # (E, Kd, 3, n)
-    sigma = np.sqrt(np.einsum("ekqn,en->ekq", s_k * s_k, cint))
-    bias = np.einsum("ekqn,en->ekq", np.abs(s_k), bnom)
-    sigma_ss = np.sqrt(np.einsum("ekqn,en->ekq", ds * ds, cacc))
-    bias_ss = np.einsum("ekqn,en->ekq", np.abs(ds), bcont)
+    sigma = np.sqrt(_wsum(s_k * s_k, cint))
+    bias = _wsum(np.abs(s_k), bnom) if any_bnom else np.zeros_like(sigma)
+    sigma_ss = np.sqrt(_wsum(ds * ds, cacc))
+    bias_ss = _wsum(np.abs(ds), bcont) if any_bcont else np.zeros_like(sigma)
     sacc = np.sqrt(np.einsum("ekn,en->ek", s_k[:, :, 2] ** 2, cacc)) if need_acc else None
     sep = np.einsum("ekqn,en->ekq", ds, y) if y is not None else None
-    return sigma, bias, sigma_ss, bias_ss, np.where(good, ratio, 0.0), sacc, sep
+    return sigma, bias, sigma_ss, bias_ss, ratio, sacc, sep
+
+
+def _nested(av, g, cint, cacc, bnom, bcont, base_removed, base_present, jb, idx, need_acc, y,
+            any_bnom, any_bcont):
+    """Modes removing a whole constellation plus ``r`` in (1, 2) other satellites that
+    leave every other constellation a satellite: one- or two-satellite down-dates of the
+    constellation's own subset solution (the base, solved once per constellation from its
+    normal equations, :func:`_solve_subsets`).
+
+    With the base ``Sb``, ``Mb = I - G Sb`` and the extra satellites ``b``, the leave-out
+    formula of the module docstring gives ``S^(k) = Sb - a Mb[b, :]``, ``a = Sb[:3, b]
+    (Mb_bb)^-1``, ``det(N_k)/det(N_0) = det(Nb)/det(N_0) det(Mb_bb)``;
+    ``sigma_q^(k)2 = sigma_q^(b)2 + a_q Mb_bb C_int,b a_q^T``; with ``D = Sb[:3] - S0[:3]``,
+    ``sigma_ss,q^(k)2 = |D_q|^2_Cacc - 2 a_q (Mb[b, :] C_acc D_q^T) + a_q (Mb C_acc
+    Mb^T)_bb a_q^T``; the separations ``D y - a (Mb y)_b``.
+
+    ``base_removed``, ``base_present`` (J, n), (J, c): the bases; ``jb`` (Kn,) each mode's
+    base, ``idx`` (Kn, r) its extra satellites.
+    """
+    e, n, m = g.shape
+    kn, r = idx.shape
+    sb, ratio_b = _solve_subsets(av, g, cint, base_removed, base_present, m)  # (E, J, m, n)
+    sb3 = sb[:, :, :3]  # (E, J, 3, n)
+    mb_full = np.eye(n) - g[:, None] @ sb  # (E, J, n, n), once per base
+    jk = jb[:, None]
+    mrow = mb_full[:, jk, idx, :]  # rows b of each mode's base: (E, Kn, r, n)
+    mbb = mb_full[:, jk[..., None], idx[:, :, None], idx[:, None, :]]  # (E, Kn, r, r)
+    if r == 1:
+        det = mbb[..., 0, 0]
+        good = det > RATIO_MIN
+        inv = (1.0 / np.where(good, det, 1.0))[..., None, None]
+    else:
+        a_, b_, c_, d_ = mbb[..., 0, 0], mbb[..., 0, 1], mbb[..., 1, 0], mbb[..., 1, 1]
+        det = a_ * d_ - b_ * c_
+        good = det > RATIO_MIN
+        sc = 1.0 / np.where(good, det, 1.0)
+        inv = np.stack([np.stack([d_ * sc, -b_ * sc], -1), np.stack([-c_ * sc, a_ * sc], -1)],
+                       -2)
+    sb_cols = np.swapaxes(np.swapaxes(sb3, 2, 3)[:, jk, idx, :], 2, 3)  # (E, Kn, 3, r)
+    amat = _small_matmul(sb_cols, inv)  # (E, Kn, 3, r)
+    sig_b2 = _wsum(sb3 ** 2, cint)  # (E, J, 3)
+    q_int = mbb * cint[:, idx][:, :, None, :]
+    sigma = np.sqrt(sig_b2[:, jb] + np.maximum(_quad(amat, q_int), 0.0))
+    dmat = sb3 - av.p0[:, None]  # (E, J, 3, n)
+    d2 = _wsum(dmat * dmat, cacc)[:, jb]  # (E, Kn, 3)
+    xb = (mb_full * cacc[:, None, None, :]) @ np.swapaxes(dmat, -1, -2)  # (E, J, n, 3)
+    x = xb[:, jk, idx, :]  # (E, Kn, r, 3)
+    mc = mrow * cacc[:, None, None, :]  # (E, Kn, r, n)
+    qa = mc @ np.swapaxes(mrow, -1, -2)  # (E, Kn, r, r)
+    cross = np.sum(amat * np.swapaxes(x, -1, -2), axis=-1)  # (E, Kn, 3)
+    sigma_ss = np.sqrt(np.maximum(d2 - 2.0 * cross + _quad(amat, qa), 0.0))
+    p_b = sb3[:, jb] if (any_bnom or any_bcont or need_acc) else None  # (E, Kn, 3, n)
+    s_k = None
+    if any_bnom or any_bcont or need_acc:
+        s_k = p_b - amat @ mrow  # (E, Kn, 3, n)
+    bias = _wsum(np.abs(s_k), bnom) if any_bnom else np.zeros_like(sigma)
+    bias_ss = (_wsum(np.abs(s_k - av.p0[:, None]), bcont) if any_bcont
+               else np.zeros_like(sigma))
+    sacc = np.sqrt(np.einsum("ekn,en->ek", s_k[:, :, 2] ** 2, cacc)) if need_acc else None
+    sep = None
+    if y is not None:
+        dy = np.einsum("ejqn,en->ejq", dmat, y)[:, jb]
+        my = (mrow @ y[:, None, :, None])[..., 0]  # (E, Kn, r)
+        sep = dy - np.sum(amat * my[:, :, None, :], axis=-1)
+    ratio = np.where(good, ratio_b[:, jb] * det, 0.0)
+    return sigma, bias, sigma_ss, bias_ss, ratio, sacc, sep
+
+
+@dataclass(frozen=True)
+class PlBracket:
+    """The protection-level equations of ``R`` rows, normalised, with MAAST's starting
+    bracket (section 7); see :func:`pl_bracket`."""
+
+    c: np.ndarray  # (R, J) offsets (0 for inactive terms)
+    sig: np.ndarray  # (R, J) sigmas (1 for inactive terms)
+    p: np.ndarray  # (R, J) priors (0: inactive)
+    a: np.ndarray  # (R, J) caps (1 for inactive terms)
+    tgt: np.ndarray  # (R,) budgets (1 where not ok)
+    low: np.ndarray  # (R,) L_low, a lower bound of the root (0 where not ok)
+    up: np.ndarray  # (R,) L_up, an upper bound of the output (0 where not ok)
+    ok: np.ndarray  # (R,) bool: a finite PL (budget > 0 and some active term)
+
+
+def pl_bracket(c, sig, p, a, target) -> PlBracket:
+    """The starting bracket of :func:`solve_pl` (arguments as there). The output of the
+    search always lies in ``[low, up]`` (the search only moves the ends inwards)."""
+    active = p > 0.0
+    c = np.where(active, c, 0.0)
+    sig = np.where(active, sig, 1.0)
+    p = np.where(active, p, 0.0)
+    a = np.where(active, a, 1.0)
+    ok = (target > 0.0) & np.any(active, axis=1)
+    tgt = np.where(ok, target, 1.0)
+    k_terms = np.maximum(active.sum(axis=1), 1)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        k_low, k_high = _bracket_multipliers(tgt, k_terms, p, a, active)
+        low = np.max(np.where(active, c + k_low * sig, -np.inf), axis=1)
+        up = np.max(np.where(active, c + k_high * sig, -np.inf), axis=1)
+        low, up = np.where(ok, low, 0.0), np.where(ok, up, 0.0)
+    return PlBracket(c, sig, p, a, tgt, low, up, ok)
+
+
+def _bracket_multipliers(tgt, k_terms, p, a, active):
+    """``Q^-1(min(1, tgt/(p a)))`` and ``max(0, Q^-1(min(1, tgt/(K' p))))`` of every term,
+    (R, J) (inactive terms: anything, masked by the caller). Rows often share their
+    budget, term count, priors and caps (one mode list, a few budgets): then ``Q^-1`` runs
+    on the distinct rows only and is gathered (same numbers, far fewer ``ndtri`` calls)."""
+    r, j = p.shape
+    if r > 8:
+        p_col = np.max(p, axis=0)
+        a_col = np.max(np.where(active, a, -np.inf), axis=0)
+        same = bool(np.all((p == p_col) | ~active)) and bool(np.all((a == a_col) | ~active))
+        if same:
+            t_u, t_inv = np.unique(tgt, return_inverse=True)
+            code = t_inv.reshape(-1).astype(np.int64) * (j + 2) + k_terms
+            uniq, inv = np.unique(code, return_inverse=True)
+            if len(uniq) * 4 <= r:
+                t_u, k_u = t_u[uniq // (j + 2)], (uniq % (j + 2)).astype(float)
+                a_col = np.where(np.isfinite(a_col), a_col, 1.0)
+                low_u = q_inv(np.minimum(1.0, t_u[:, None] / (p_col * a_col)))
+                high_u = np.maximum(0.0, q_inv(np.minimum(1.0, t_u[:, None]
+                                                          / (k_u[:, None] * p_col))))
+                inv = inv.reshape(-1)
+                return low_u[inv], high_u[inv]
+    pa = p * a
+    k_low = q_inv(np.minimum(1.0, np.where(active, tgt[:, None] / pa, 1.0)))
+    k_high = np.maximum(0.0, q_inv(np.minimum(1.0, tgt[:, None] / (k_terms[:, None] * p))))
+    return k_low, k_high
+
+
+def pl_bisect(br: PlBracket, tol: float, max_iter: int = 0, rows=None):
+    """MAAST's half-interval search from the bracket ``br`` on the rows ``rows`` (bool
+    (R,), default all). Returns (R,): ``L_up`` of the searched rows, ``br.up`` of the
+    others, ``inf`` where not ``br.ok``. A row's result does not depend on the others."""
+    low, up = br.low.copy(), br.up.copy()
+    sel = br.ok & (up - low > tol)
+    if rows is not None:
+        sel &= rows
+    rows = np.flatnonzero(sel)
+    steps = max_iter if max_iter > 0 else _MAX_STEPS
+    # The rows still searching are gathered once and compacted only when some finish;
+    # with every cap a_j >= 1 the min(Qm, a) is Qm itself (Qm <= 1).
+    capped = not bool(np.all(br.a >= 1.0))
+    lo, hi, tg = low[rows], up[rows], br.tgt[rows]
+    cr, sr, pr = br.c[rows], br.sig[rows], br.p[rows]
+    ar = br.a[rows] if capped else None
+    for _ in range(steps):
+        if rows.size == 0:
+            break
+        mid = 0.5 * (lo + hi)
+        x = (mid[:, None] - cr) / sr
+        qm = ndtr(-np.maximum(x, 0.0))
+        qm[x < 0.0] = 1.0
+        if capped:
+            qm = np.minimum(qm, ar)
+        lhs = np.sum(pr * qm, axis=1)
+        high = lhs > tg
+        lo = np.where(high, mid, lo)
+        hi = np.where(high, hi, mid)
+        live = hi - lo > tol
+        if not live.all():
+            done = ~live
+            low[rows[done]], up[rows[done]] = lo[done], hi[done]
+            rows, lo, hi, tg = rows[live], lo[live], hi[live], tg[live]
+            cr, sr, pr = cr[live], sr[live], pr[live]
+            ar = ar[live] if capped else None
+    low[rows], up[rows] = lo, hi
+    return np.where(br.ok, up, np.inf)
 
 
 def solve_pl(c, sig, p, a, target, tol: float, max_iter: int = 0):
@@ -287,35 +602,7 @@ def solve_pl(c, sig, p, a, target, tol: float, max_iter: int = 0):
     -------
     (R,) ``L_up``, within ``[root, root + tol]`` (``inf`` where ``target <= 0``).
     """
-    active = p > 0.0
-    c = np.where(active, c, 0.0)
-    sig = np.where(active, sig, 1.0)
-    p = np.where(active, p, 0.0)
-    a = np.where(active, a, 1.0)
-    ok = (target > 0.0) & np.any(active, axis=1)
-    tgt = np.where(ok, target, 1.0)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        pa = p * a
-        k_low = q_inv(np.minimum(1.0, np.where(active, tgt[:, None] / pa, 1.0)))
-        low = np.max(np.where(active, c + k_low * sig, -np.inf), axis=1)
-        k_terms = np.maximum(active.sum(axis=1), 1)
-        k_high = np.maximum(0.0, q_inv(np.minimum(1.0, tgt[:, None] / (k_terms[:, None] * p))))
-        up = np.max(np.where(active, c + k_high * sig, -np.inf), axis=1)
-        low, up = np.where(ok, low, 0.0), np.where(ok, up, 0.0)
-    steps = max_iter if max_iter > 0 else _MAX_STEPS
-    rows = np.flatnonzero(ok & (up - low > tol))
-    for _ in range(steps):
-        if rows.size == 0:
-            break
-        mid = 0.5 * (low[rows] + up[rows])
-        x = (mid[:, None] - c[rows]) / sig[rows]
-        qm = np.where(x < 0.0, 1.0, ndtr(-np.maximum(x, 0.0)))
-        lhs = np.sum(p[rows] * np.minimum(qm, a[rows]), axis=1)
-        high = lhs > tgt[rows]
-        low[rows] = np.where(high, mid, low[rows])
-        up[rows] = np.where(high, up[rows], mid)
-        rows = rows[up[rows] - low[rows] > tol]
-    return np.where(ok, up, np.inf)
+    return pl_bisect(pl_bracket(c, sig, p, a, target), tol, max_iter)
 
 
 @dataclass(frozen=True)
@@ -343,10 +630,13 @@ class Evaluation:
     alarm: np.ndarray | None  # (E,)
     alarm_mode: np.ndarray | None  # (E,)
     test_ratio: np.ndarray | None  # (E,)
+    #: with ``defer_pl``: the PL equations, rows (axis, epoch) (E, N, U), not yet searched
+    #: (``hpl``, ``hpl1``, ``hpl2``, ``vpl`` are then NaN; ``ok`` False rows are infinite).
+    pl: PlBracket | None = None
 
 
 def evaluate(g, cint, cacc, bnom, bcont, cons, modes, prm: dict, *, rules: str,
-             rho=1.0, drop: bool = True, p_nm=None, y=None) -> Evaluation:
+             rho=1.0, drop: bool = True, p_nm=None, y=None, defer_pl: bool = False) -> Evaluation:
     """Sections 5-8 for the epochs of one pattern and its mode list.
 
     ``drop``: the all-in-view rule (unmonitorable modes leave the list and their ``p_exp``
@@ -354,6 +644,8 @@ def evaluate(g, cint, cacc, bnom, bcont, cons, modes, prm: dict, *, rules: str,
     ``sigma = inf``, consuming ``p_inst a`` of the budget, and one with ``p_inst >= P_EMT``
     makes the EMT infinite) with ``p_nm`` (E,), the all-in-view's final ``P_nm`` (what
     ``mhss_raim_baseline_v5.m`` returns to ``usr_vhpl_araim.m``).
+    ``defer_pl``: return the protection-level equations and their brackets (``pl``)
+    instead of solving them, so that the caller searches only the rows it needs.
     """
     e = g.shape[0]
     b2012 = rules == "blanch-2012"
@@ -404,10 +696,14 @@ def evaluate(g, cint, cacc, bnom, bcont, cons, modes, prm: dict, *, rules: str,
     tgt = np.concatenate([phmi_h - lost, phmi_h - lost, phmi_v - lost])
     ax_c = np.where(ax_p > 0, ax_c, 0.0)
     ax_s = np.where(ax_p > 0, ax_s, 1.0)
-    pl = solve_pl(ax_c, ax_s, ax_p, ax_a, tgt, prm["tol_pl_m"], prm["pl_max_iter"])
-    pl = pl.reshape(3, e)
-    hpl1, hpl2, vpl = pl[0], pl[1], pl[2]
-    hpl = np.hypot(hpl1, hpl2)
+    br = pl_bracket(ax_c, ax_s, ax_p, ax_a, tgt)
+    if defer_pl:
+        hpl1, hpl2, vpl, hpl = (np.full(e, np.nan) for _ in range(4))
+    else:
+        pl = pl_bisect(br, prm["tol_pl_m"], prm["pl_max_iter"]).reshape(3, e)
+        hpl1, hpl2, vpl = pl[0], pl[1], pl[2]
+        hpl = np.hypot(hpl1, hpl2)
+        br = None
     # Section 8: EMT and accuracy.
     sel = mon_f & (p_inst[None, 1:] >= prm["p_emt"])
     t3 = thr[:, 1:, 2]
@@ -448,4 +744,4 @@ def evaluate(g, cint, cacc, bnom, bcont, cons, modes, prm: dict, *, rules: str,
     k_fa[bad] = np.nan
     return Evaluation(av.ok, av.reason, hpl, hpl1, hpl2, vpl, emt, sigma_acc_v, n_fm, p_nm,
                       k_fa, phmi_v, phmi_h, av.sigma, av.bias, thr, st, av.dx, alarm,
-                      alarm_mode, ratio)
+                      alarm_mode, ratio, br)

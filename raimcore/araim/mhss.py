@@ -12,8 +12,8 @@ from types import MappingProxyType
 import numpy as np
 
 from .._validate import check_array, check_batch
-from . import _params
-from .kernel import evaluate
+from . import _kernel_reference, _params
+from .kernel import evaluate, pl_bisect
 from .modes import ModeList, determine_modes, restrict_modes
 
 __all__ = ["mhss", "MhssResult", "FaultModes"]
@@ -311,8 +311,8 @@ def _pattern(inp: _Inputs, ep: int) -> _Pattern:
                     inp.tau_sat[ep, sats], inp.p_const[ep, pc], inp.tau_const[ep, pc])
 
 
-def _modes_for(pat: _Pattern, rules: str, prm: dict) -> ModeList:
-    kw = dict(rules=rules, phmi=prm["phmi_vert"] + prm["phmi_hor"])
+def _modes_for(pat: _Pattern, rules: str, prm: dict, reference: bool = False) -> ModeList:
+    kw = dict(rules=rules, phmi=prm["phmi_vert"] + prm["phmi_hor"], reference=reference)
     if rules == "blanch-2012":
         kw.update(p_thres_sat=prm["p_thres_sat"], p_thres_const=prm["p_thres_const"])
     else:
@@ -353,6 +353,29 @@ def mhss(G, sigma_int_m, sigma_acc_m, b_int_m, b_acc_m, p_sat, p_const, *,
     ----------
     ARAIM.md sections 3-9; [ADD] v4.2; [B2012]; MAAST ``usr_vhpl_araim.m``.
     """
+    return _mhss(G, sigma_int_m, sigma_acc_m, b_int_m, b_acc_m, p_sat, p_const, rules=rules,
+                 reference=False, **params)
+
+
+def _mhss(G, sigma_int_m, sigma_acc_m, b_int_m, b_acc_m, p_sat, p_const, *,
+          rules: str = "add-v4.2", reference: bool = False, **params) -> MhssResult:
+    """:func:`mhss`, with a choice of path.
+
+    Parameters
+    ----------
+    G, sigma_int_m, sigma_acc_m, b_int_m, b_acc_m, p_sat, p_const, rules, **params
+        As :func:`mhss`.
+    reference : bool
+        False: the fast path (:func:`mhss`). True: the plain reference path kept for the
+        agreement tests and the benchmarks: the kernel as first written
+        (:mod:`raimcore.araim._kernel_reference`), exclusion candidates evaluated one by
+        one with every protection level searched, fault-mode lists merged row by row.
+
+    Returns
+    -------
+    MhssResult
+        The same decisions on both paths, numbers equal to rounding.
+    """
     prm = _params.resolve(rules, params)
     inp = _check_inputs(G, sigma_int_m, sigma_acc_m, b_int_m, b_acc_m, p_sat, p_const, prm)
     e, n_sat = inp.visible.shape
@@ -371,7 +394,7 @@ def mhss(G, sigma_int_m, sigma_acc_m, b_int_m, b_acc_m, p_sat, p_const, *,
     group_data = []
     for gi, ep in enumerate(reps):
         pat = _pattern(inp, ep)
-        cache[gi] = _modes_for(pat, rules, prm)
+        cache[gi] = _modes_for(pat, rules, prm, reference)
         group_data.append(pat)
     k_max = max((len(m) for m in cache.values()), default=1)
     if want_modes:
@@ -385,10 +408,18 @@ def mhss(G, sigma_int_m, sigma_acc_m, b_int_m, b_acc_m, p_sat, p_const, *,
         n, k = pat.n, len(modes)
         cands = _candidates(pat, prm) if fde else []
         rho = 1.0 / (len(cands) + 1) if fde else 1.0
+        plan = None if reference or not cands else _candidate_plan(pat, modes, cands)
         sub = max(16, _WORK_ELEMENTS // max(1, k * n * 3))
+        if plan is not None:  # every candidate's PL equations (3 x K, 4 arrays) are kept
+            sub = min(sub, max(4, _WORK_ELEMENTS // max(1, len(cands) * k * 12)))
         for s0 in range(0, eps_all.size, sub):
             eps = eps_all[s0:s0 + sub]
-            _run_chunk(inp, eps, pat, modes, cands, rho, prm, rules, out, want_modes)
+            if plan is None:
+                _run_chunk(inp, eps, pat, modes, cands, rho, prm, rules, out, want_modes,
+                           _kernel_reference.evaluate if reference else evaluate)
+            else:
+                _run_chunk_batched(inp, eps, pat, modes, plan, rho, prm, rules, out,
+                                   want_modes)
 
     return out.result(inp.batch, rules, prm, want_modes)
 
@@ -407,6 +438,242 @@ def _candidates(pat: _Pattern, prm: dict):
     return out
 
 
+@dataclass(frozen=True)
+class _CandidateGroup:
+    """Exclusion candidates of one pattern that see the same problem shape: the same
+    compacted restricted fault-mode list, constellations and clock columns. They are
+    evaluated in one batched call, candidates as an extra batch axis."""
+
+    members: np.ndarray  # (C,) positions in the candidate list
+    keep_idx: np.ndarray  # (C, n_c) compact indices of the satellites each keeps
+    cols: np.ndarray  # (3 + c_c,) columns of G kept
+    cons: np.ndarray  # (n_c,) compact constellation of each kept satellite
+    modes: ModeList  # the shared restricted list
+
+
+@dataclass(frozen=True)
+class _CandidatePlan:
+    """Everything about a pattern's exclusion candidates that does not depend on the
+    geometry, determined once per pattern (section 9)."""
+
+    kinds: tuple  # per candidate: (kind, compact index)
+    too_few: np.ndarray  # (N_exc,) bool: leaves 3 satellites or fewer (PLs infinite)
+    groups: tuple  # of _CandidateGroup
+
+
+def _candidate_plan(pat: _Pattern, modes: ModeList, cands) -> _CandidatePlan:
+    """Restricted mode lists of every candidate (section 9), grouped by identical
+    compacted lists so that each group runs as one batched :func:`evaluate`."""
+    by_key: dict[bytes, list] = {}
+    too_few = np.zeros(len(cands), bool)
+    for ci, (_, _, keep) in enumerate(cands):
+        if keep.sum() <= 3:
+            too_few[ci] = True
+            continue
+        mc = restrict_modes(modes, keep)
+        pc_left = np.unique(pat.cons[keep])
+        cmap = np.full(len(pat.pc), -1)
+        cmap[pc_left] = np.arange(len(pc_left))
+        cons_c = cmap[pat.cons[keep]]
+        cols = np.concatenate([[0, 1, 2], 3 + pc_left])
+        key = b"|".join(a.tobytes() for a in (
+            np.array(mc.removed.shape), cons_c, cols, mc.removed, mc.p_inst, mc.p_exp))
+        entry = by_key.setdefault(key, [[], [], cols, cons_c, mc])
+        entry[0].append(ci)
+        entry[1].append(np.flatnonzero(keep))
+    groups = tuple(_CandidateGroup(np.array(m), np.array(k), cols, cons_c, mc)
+                   for m, k, cols, cons_c, mc in by_key.values())
+    kinds = tuple((kind, j) for kind, j, _ in cands)
+    return _CandidatePlan(kinds, too_few, groups)
+
+
+#: Outputs of a candidate's evaluation that the exclusion step combines.
+_CAND_FIELDS = ("ok", "emt", "sigma_acc_v", "alarm", "test_ratio", "dx")
+
+
+def _evaluate_group(grp: _CandidateGroup, g, cint, cacc, bnom, bcont, y, p_nm, prm, rules,
+                    rho):
+    """Evaluate every candidate of ``grp`` on the epochs of a chunk at once: rows
+    ``(candidate, epoch)`` flattened, cut to bound the working arrays, protection levels
+    deferred. Returns a dict of :data:`_CAND_FIELDS`, each ``(C, E, ...)`` (None where not
+    computed), and ``"parts"``: ``(first row, row count, PlBracket)`` per cut."""
+    e_s = g.shape[0]
+    n_c, kc = grp.keep_idx.shape[1], len(grp.modes)
+    c_n = len(grp.members)
+
+    def rows(a):  # (E, n, ...) -> (C * E, n_c, ...)
+        t = a[:, grp.keep_idx]  # (E, C, n_c, ...)
+        return np.swapaxes(t, 0, 1).reshape((c_n * e_s,) + t.shape[2:])
+
+    gg = rows(g)[..., grp.cols]
+    per = [rows(a) for a in (cint, cacc, bnom, bcont)]
+    yy = rows(y) if y is not None else None
+    pn = np.tile(p_nm, c_n)
+    sub = max(16, _WORK_ELEMENTS // max(1, kc * n_c * 3))
+    evs, parts = [], []
+    for r0 in range(0, c_n * e_s, sub):
+        sl = slice(r0, r0 + sub)
+        evc = evaluate(gg[sl], *(a[sl] for a in per), grp.cons, grp.modes, prm, rules=rules,
+                       rho=rho, drop=False, p_nm=pn[sl], y=None if yy is None else yy[sl],
+                       defer_pl=True)
+        evs.append(evc)
+        parts.append((r0, len(evc.ok), evc.pl))
+    out = {}
+    for f in _CAND_FIELDS:
+        vals = [getattr(p, f) for p in evs]
+        out[f] = (None if vals[0] is None else
+                  np.concatenate(vals).reshape((c_n, e_s) + vals[0].shape[1:]))
+    out["parts"] = parts
+    return out
+
+
+def _candidate_pls(plan: _CandidatePlan, groups_out, ev, e_s: int, prm):
+    """Protection levels of the exclusion candidates, searched only where they can matter.
+
+    Every candidate's PL lies in its bracket ``[low, up]`` (section 7). Only the largest
+    PL over the all-in-view and the candidates is reported, and the candidate named by
+    ``*_set_by`` is the first one reaching it; so a candidate whose ``up`` is below some
+    other evaluation's ``low`` (or value) can be neither and its search is skipped (its
+    PL is set to ``-inf``). Per epoch, the candidate with the largest lower bound is
+    searched first, its value raises the floor, then the rest that can still reach it.
+    The reported maxima and ``*_set_by`` are exactly those of searching every candidate.
+    Horizontal: both axes of a candidate together, ``hypot`` of the per-axis bounds.
+
+    Returns ``(N_exc, E)`` arrays ``hpl``, ``hpl1``, ``hpl2``, ``vpl``.
+    """
+    n_exc = len(plan.kinds)
+    tol, max_iter = prm["tol_pl_m"], prm["pl_max_iter"]
+    low = np.full((n_exc, e_s, 3), -np.inf)
+    up = np.full((n_exc, e_s, 3), -np.inf)
+    need = np.zeros((n_exc, e_s, 3), bool)
+    val = np.full((n_exc, e_s, 3), -np.inf)
+    where = []  # (group output, part, candidate indices (m,), epoch indices (m,))
+    for grp, res in groups_out:
+        for r0, m, br in res["parts"]:
+            r = np.arange(r0, r0 + m)
+            ci, ei = grp.members[r // e_s], r % e_s
+            bad = ~res["ok"].reshape(-1)[r]  # all-in-view of the candidate unavailable
+            lo3, up3, ok3 = (a.reshape(3, m).T for a in (br.low, br.up, br.ok))
+            exact = ~ok3 | (up3 - lo3 <= tol) | bad[:, None]
+            v = np.where(ok3 & ~bad[:, None], up3, np.inf)
+            low[ci, ei] = np.where(exact, v, lo3)
+            up[ci, ei] = np.where(exact, v, up3)
+            val[ci, ei] = np.where(exact, v, np.nan)
+            need[ci, ei] = ~exact
+            where.append((br, ci, ei, m))
+
+    def search(mask):  # run the search on the (candidate, epoch, axis) cells of mask
+        for br, ci, ei, m in where:
+            sel = mask[ci, ei]  # (m, 3)
+            if not sel.any():
+                continue
+            out = pl_bisect(br, tol, max_iter, rows=sel.T.reshape(-1)).reshape(3, m).T
+            cells = np.nonzero(sel)
+            val[ci[cells[0]], ei[cells[0]], cells[1]] = out[cells]
+        need[mask] = False
+        low[mask] = up[mask] = val[mask]
+
+    def h_bounds():
+        lb = np.hypot(np.maximum(low[..., 0], 0.0), np.maximum(low[..., 1], 0.0))
+        ub = np.hypot(np.maximum(np.abs(low[..., 0]), np.abs(up[..., 0])),
+                      np.maximum(np.abs(low[..., 1]), np.abs(up[..., 1])))
+        return np.where(np.isneginf(up[..., 0]), -np.inf, lb), \
+            np.where(np.isneginf(up[..., 0]), -np.inf, ub)
+
+    rows = np.arange(e_s)
+    for phase in (0, 1):
+        lb_h, ub_h = h_bounds()
+        floor_v = np.maximum(ev.vpl, np.max(low[..., 2], axis=0, initial=-np.inf))
+        floor_h = np.maximum(ev.hpl, np.max(lb_h, axis=0, initial=-np.inf))
+        open_v = need[..., 2]
+        open_h = need[..., 0] | need[..., 1]
+        mask = np.zeros_like(need)
+        if phase == 0:  # the most promising candidate of each epoch first
+            if n_exc:
+                best_v = np.argmax(np.where(open_v, low[..., 2], -np.inf), axis=0)
+                best_h = np.argmax(np.where(open_h, lb_h, -np.inf), axis=0)
+                mask[best_v, rows, 2] = open_v[best_v, rows]
+                mask[best_h, rows, 0] = open_h[best_h, rows]
+                mask[best_h, rows, 1] = open_h[best_h, rows]
+        else:  # skip those whose upper bound stays below the floor
+            mask[..., 2] = open_v & (up[..., 2] >= floor_v)
+            keep_h = open_h & (ub_h >= floor_h)
+            mask[..., 0] = keep_h
+            mask[..., 1] = keep_h
+        search(mask & need)
+    skip_v = need[..., 2]
+    skip_h = need[..., 0] | need[..., 1]
+    vpl = np.where(skip_v, -np.inf, val[..., 2])
+    hpl1 = np.where(skip_h, np.nan, val[..., 0])
+    hpl2 = np.where(skip_h, np.nan, val[..., 1])
+    hpl = np.where(skip_h, -np.inf, np.hypot(hpl1, hpl2))
+    return hpl, hpl1, hpl2, vpl
+
+
+def _run_chunk_batched(inp, eps, pat, modes, plan: _CandidatePlan, rho, prm, rules, out,
+                       want_modes):
+    """:func:`_run_chunk` with the exclusion candidates evaluated group by group in
+    batched calls (:func:`_candidate_plan`) and their protection levels searched only
+    where they can change the result (:func:`_candidate_pls`); the outputs are combined
+    in the candidate order of the reference loop, so every maximum, tie and ``*_set_by``
+    is the same."""
+    idx, g, cint, cacc, bnom, bcont, y = _gather(inp, eps, pat)
+    ev = evaluate(g, cint, cacc, bnom, bcont, pat.cons, modes, prm, rules=rules, rho=rho,
+                  drop=True, y=y)
+    e_s = len(eps)
+    evals: list = [None] * len(plan.kinds)
+    groups_out = []
+    for grp in plan.groups:
+        res = _evaluate_group(grp, g, cint, cacc, bnom, bcont, y, ev.p_nm, prm, rules, rho)
+        groups_out.append((grp, res))
+        for pos, ci in enumerate(grp.members):
+            evals[ci] = {f: (None if res[f] is None else res[f][pos]) for f in _CAND_FIELDS}
+    c_hpl, c_hpl1, c_hpl2, c_vpl = _candidate_pls(plan, groups_out, ev, e_s, prm)
+    hpl, hpl1, hpl2 = ev.hpl.copy(), ev.hpl1.copy(), ev.hpl2.copy()
+    vpl, emt, sacc = ev.vpl.copy(), ev.emt.copy(), ev.sigma_acc_v.copy()
+    vpl_by = hpl_by = np.full(e_s, -1)
+    best_ratio = np.full(e_s, np.inf)
+    best_sat = np.full(e_s, -1)
+    best_const = np.full(e_s, -1)
+    dx_exc = np.full((e_s, 3), np.nan)
+    n_sat = inp.visible.shape[1]
+    for ci, (kind, j) in enumerate(plan.kinds):
+        event = idx[:, j] if kind == "sat" else np.full(e_s, n_sat + pat.pc[j])
+        if plan.too_few[ci]:  # MAAST: such a candidate leaves the PLs infinite
+            vpl_by = np.where(np.isfinite(vpl), event, vpl_by)
+            hpl_by = np.where(np.isfinite(hpl), event, hpl_by)
+            for a in (hpl, hpl1, hpl2, vpl, emt, sacc):
+                a[:] = np.inf
+            continue
+        evc = evals[ci]
+        bigger = c_hpl[ci] > hpl
+        hpl_by = np.where(bigger, event, hpl_by)
+        vpl_by = np.where(c_vpl[ci] > vpl, event, vpl_by)
+        hpl1 = np.where(bigger, c_hpl1[ci], hpl1)
+        hpl2 = np.where(bigger, c_hpl2[ci], hpl2)
+        hpl = np.maximum(hpl, c_hpl[ci])
+        vpl = np.maximum(vpl, c_vpl[ci])
+        emt = np.maximum(emt, evc["emt"])
+        sacc = np.maximum(sacc, evc["sigma_acc_v"])
+        if y is not None:
+            r = np.where(np.isnan(evc["test_ratio"]), 0.0, evc["test_ratio"])
+            passes = evc["ok"] & ~evc["alarm"] & ev.alarm & (r < best_ratio)
+            best_ratio = np.where(passes, r, best_ratio)
+            if kind == "sat":
+                best_sat = np.where(passes, idx[:, j], best_sat)
+                best_const = np.where(passes, -1, best_const)
+            else:
+                best_const = np.where(passes, pat.pc[j], best_const)
+                best_sat = np.where(passes, -1, best_sat)
+            dx_exc = np.where(passes[:, None], evc["dx"], dx_exc)
+    if y is None:
+        best_sat = best_const = dx_exc = None
+    out.store(eps, ev, hpl, hpl1, hpl2, vpl, emt, sacc, rho, best_sat, best_const, dx_exc)
+    out.vpl_by[eps], out.hpl_by[eps] = vpl_by, hpl_by
+    if want_modes:
+        out.store_modes(eps, idx, pat, modes, ev)
+
+
 def _gather(inp: _Inputs, eps, pat: _Pattern):
     idx = _compaction(inp.visible[eps], pat.n)  # (E_s, n) original satellite indices
     cols = np.concatenate([[0, 1, 2], 3 + pat.pc])
@@ -420,10 +687,12 @@ def _gather(inp: _Inputs, eps, pat: _Pattern):
     return idx, g, cint, cacc, bnom, bcont, y
 
 
-def _run_chunk(inp, eps, pat, modes, cands, rho, prm, rules, out, want_modes):
+def _run_chunk(inp, eps, pat, modes, cands, rho, prm, rules, out, want_modes, ev_fn):
+    """One chunk of epochs of a pattern, exclusion candidates one by one with ``ev_fn``
+    (the reference path; without exclusion, the only path)."""
     idx, g, cint, cacc, bnom, bcont, y = _gather(inp, eps, pat)
-    ev = evaluate(g, cint, cacc, bnom, bcont, pat.cons, modes, prm, rules=rules, rho=rho,
-                  drop=True, y=y)
+    ev = ev_fn(g, cint, cacc, bnom, bcont, pat.cons, modes, prm, rules=rules, rho=rho,
+               drop=True, y=y)
     hpl, hpl1, hpl2 = ev.hpl.copy(), ev.hpl1.copy(), ev.hpl2.copy()
     vpl, emt, sacc = ev.vpl.copy(), ev.emt.copy(), ev.sigma_acc_v.copy()
     best_sat = best_const = None
@@ -444,12 +713,12 @@ def _run_chunk(inp, eps, pat, modes, cands, rho, prm, rules, out, want_modes):
                 for a in (hpl, hpl1, hpl2, vpl, emt, sacc):
                     a[:] = np.inf
                 continue
-            mc = restrict_modes(modes, keep)
+            mc = restrict_modes(modes, keep, reference=True)
             pc_left = np.unique(pat.cons[keep])
             cmap = np.full(len(pat.pc), -1)
             cmap[pc_left] = np.arange(len(pc_left))
             cols = np.concatenate([[0, 1, 2], 3 + pc_left])
-            evc = evaluate(g[:, keep][:, :, cols], cint[:, keep], cacc[:, keep],
+            evc = ev_fn(g[:, keep][:, :, cols], cint[:, keep], cacc[:, keep],
                            bnom[:, keep], bcont[:, keep], cmap[pat.cons[keep]], mc, prm,
                            rules=rules, rho=rho, drop=False, p_nm=ev.p_nm,
                            y=None if y is None else y[:, keep])

@@ -91,11 +91,28 @@ def _combos(n_events: int, sizes) -> list[np.ndarray]:
     return out
 
 
-def _merge(removed, consts, p_inst, p_exp):
+#: Removed sets of at most this many satellites are merged through one integer key per
+#: mode (a bit per satellite) instead of a row-wise ``np.unique``; same groups, same order.
+_KEY_BITS = 62
+
+
+def _row_groups(removed, reference: bool = False):
+    """``first`` and ``inverse`` of ``np.unique(removed, axis=0)`` (bool ``(K, n)``),
+    through 64-bit keys when ``n <= 62`` (``reference``: always row-wise)."""
+    k, n = removed.shape
+    if reference or n > _KEY_BITS or k == 0:
+        _, first, inverse = np.unique(removed, axis=0, return_index=True,
+                                      return_inverse=True)
+        return first, inverse.reshape(-1)
+    keys = removed.astype(np.int64) @ (np.int64(1) << np.arange(n, dtype=np.int64))
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    return first, inverse.reshape(-1)
+
+
+def _merge(removed, consts, p_inst, p_exp, reference: bool = False):
     """Merge modes with identical removed sets: keep the first, sum the probabilities
     (``find_unique_subsets.m``, section 4 step 7)."""
-    _, first, inverse = np.unique(removed, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    first, inverse = _row_groups(removed, reference)
     order = np.argsort(first, kind="stable")  # unique rows in order of first appearance
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
@@ -113,7 +130,7 @@ def determine_modes(cons, p_sat, p_const, *, rules: str = "add-v4.2", tau_sat=No
                     tau_const=None, p_thres: float = 8e-8, p_thres_sat: float = 4e-8,
                     p_thres_const: float = 4e-8, fc_thres: float = 0.01,
                     phmi: float = 1e-7, fde: bool = False,
-                    p_exc_thres: float = 1.0) -> ModeList:
+                    p_exc_thres: float = 1.0, reference: bool = False) -> ModeList:
     """The fault modes to monitor for one set of satellites in view.
 
     Parameters
@@ -128,6 +145,8 @@ def determine_modes(cons, p_sat, p_const, *, rules: str = "add-v4.2", tau_sat=No
         monitored whatever ``P_nm`` (step 5).
     fde, p_exc_thres : with exclusion, modes sharing no satellite with some exclusion
         option (a mode with ``p_inst > p_exc_thres``) are not taken in step 6.
+    reference : merge identical removed sets row by row (the plain reference path of
+        the agreement tests) rather than through integer keys; same result.
 
     Returns
     -------
@@ -141,7 +160,8 @@ def determine_modes(cons, p_sat, p_const, *, rules: str = "add-v4.2", tau_sat=No
     # Incidence event -> satellites it removes.
     inc = np.concatenate([np.eye(n, dtype=bool), member], axis=0)  # (n + c, n)
     if rules == "blanch-2012":
-        return _determine_b2012(n, c, member, p_sat, p_const, p_thres_sat, p_thres_const)
+        return _determine_b2012(n, c, member, p_sat, p_const, p_thres_sat, p_thres_const,
+                                reference)
     tau_sat = np.zeros(n) if tau_sat is None else np.broadcast_to(tau_sat, (n,))
     tau_const = np.zeros(c) if tau_const is None else np.broadcast_to(tau_const, (c,))
     p_inst_e = np.concatenate([p_sat, p_const])
@@ -214,11 +234,13 @@ def determine_modes(cons, p_sat, p_const, *, rules: str = "add-v4.2", tau_sat=No
         p_nm -= float(p_exp[k])
     sel = np.concatenate([np.flatnonzero(large), np.array(taken, dtype=int)])
     # Step 7: merge identical removed sets.
-    removed, consts, p_inst, p_exp = _merge(removed[sel], consts[sel], p_inst[sel], p_exp[sel])
+    removed, consts, p_inst, p_exp = _merge(removed[sel], consts[sel], p_inst[sel], p_exp[sel],
+                                            reference)
     return ModeList(removed, consts, p_inst, p_exp, max(p_nm, 0.0), (n_max,))
 
 
-def _determine_b2012(n, c, member, p_sat, p_const, p_thres_sat, p_thres_const):
+def _determine_b2012(n, c, member, p_sat, p_const, p_thres_sat, p_thres_const,
+                     reference=False):
     """B2012 rule: satellite sets and constellation sets apart, no mixed sets, no
     consolidation, ``P_nm`` = exact tails of each (ARAIM.md section 4)."""
     n_sat_max = min(_n_max(p_sat, p_thres_sat), n)
@@ -240,19 +262,20 @@ def _determine_b2012(n, c, member, p_sat, p_const, p_thres_sat, p_thres_const):
     p_exp = p.copy()
     p_exp[0] = float(np.prod(1.0 - p_sat) * np.prod(1.0 - p_const))
     p_nm = (p_at_least(p_sat, n_sat_max + 1) + p_at_least(p_const, n_const_max + 1))
-    removed, consts, p_inst, p_exp = _merge(removed, consts, p, p_exp)
+    removed, consts, p_inst, p_exp = _merge(removed, consts, p, p_exp, reference)
     return ModeList(removed, consts, p_inst, p_exp, p_nm, (n_sat_max, n_const_max))
 
 
-def restrict_modes(modes: ModeList, keep) -> ModeList:
+def restrict_modes(modes: ModeList, keep, *, reference: bool = False) -> ModeList:
     """The mode list seen by an exclusion candidate that keeps the satellites ``keep``.
 
     Each mode's removed set is cut to the kept satellites (columns ``keep``); modes that
     then remove nothing merge into the fault-free row, identical ones merge (their
     probabilities add); ``p_nm`` is kept (ARAIM.md section 9, ``usr_vhpl_araim.m``; the
     kernel uses the all-in-view's final ``P_nm``, after unmonitorable modes are dropped).
+    ``reference``: merge row by row (see :func:`determine_modes`).
     """
     keep = np.asarray(keep, dtype=bool)
     removed = modes.removed[:, keep]
-    r, cst, pi, pe = _merge(removed, modes.consts, modes.p_inst, modes.p_exp)
+    r, cst, pi, pe = _merge(removed, modes.consts, modes.p_inst, modes.p_exp, reference)
     return ModeList(r, cst, pi, pe, modes.p_nm, modes.n_max)
