@@ -3,9 +3,11 @@
 The 2-hour, 30-s RINEX 3.05 file of ESBC (../shared/data: GPS, Galileo, BeiDou and
 GLONASS, about 40 satellites an epoch, 240 epochs) with its navigation file, as
 ``raim run --obs ... --nav ... --set systems=[...]`` runs it (the reading is cached after
-the first run, as in the dashboard). Prints each algorithm's time, the sum, and the sum
-scaled to a full day (2,880 epochs: the per-epoch cost times 12, the day's recording being
-the same kind of data); the issue's target for the full day is 10 s.
+the first run, as in the dashboard). Each algorithm runs twice: first (its one-time work
+included: PF-LLR's threshold calibration, unless cached on disk) and again with another
+seed (what every further run costs). The full day (2,880 epochs, the same kind of data)
+is the one-time work plus 12 times the second run; the issue's target for all algorithms
+together is 10 s.
 
 Run: ``python tests/benchmarks/bench_recording.py [--algorithms parity,mss,...]``.
 """
@@ -50,18 +52,22 @@ def main(argv=None) -> int:
     run_scenario(base)
     print(f"reading + correcting the recording (once): {time.perf_counter() - t0:.2f} s")
     total = 0.0
-    n_epochs = 0
-    print(f"{'algorithm':10s} {'time':>8s} {'ms/epoch':>9s} {'full day (x12)':>15s}")
+    print(f"{'algorithm':10s} {'first run':>10s} {'again':>8s} {'ms/epoch':>9s} "
+          f"{'full day':>9s}")
     for name in names:
         t0 = time.perf_counter()
         res = run_scenario(base.replace(algorithm=name))
-        dt = time.perf_counter() - t0
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        run_scenario(base.replace(algorithm=name, seed=base.seed + 1))  # caches kept
+        again = time.perf_counter() - t0
         n_epochs = len(res.measurements.t_s)
-        total += dt
-        print(f"{name:10s} {dt:7.2f}s {1e3 * dt / n_epochs:9.2f} "
-              f"{dt * DAY_EPOCHS / n_epochs:14.1f}s")
-    print(f"{'all':10s} {total:7.2f}s {1e3 * total / max(n_epochs, 1):9.2f} "
-          f"{total * DAY_EPOCHS / max(n_epochs, 1):14.1f}s  (target for the day: <= 10 s)")
+        day = max(first - again, 0.0) + again * DAY_EPOCHS / n_epochs
+        total += day
+        print(f"{name:10s} {first:9.2f}s {again:7.2f}s {1e3 * again / n_epochs:9.2f} "
+              f"{day:8.1f}s")
+    print(f"{'all':10s} {'':>10s} {'':>8s} {'':>9s} {total:8.1f}s  "
+          f"(target for the day: <= 10 s)")
     return 0
 
 
