@@ -209,8 +209,10 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
                       per_sat["p_sat"], per_sys["p_const"], rules=rules, y=y, fde=fde,
                       **params)
 
-    avail = ok & (res.status == "ok")
     dof = lin.n_used - lin.n_states
+    # No redundancy (dof 0): nothing to test and every fault mode unmonitorable, so
+    # unavailable, as for every algorithm (never a statistic of rounding noise).
+    avail = ok & (res.status == "ok") & (dof >= 1)
     status = np.where(~avail, STATUS_UNAVAILABLE,
                       np.where(dof >= 2, STATUS_OK, STATUS_NO_ISOLATION)).astype(object)
     alarm = avail & res.alarm
