@@ -31,7 +31,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["propose_rows", "normalise_rows", "resample_rows", "student_t_ll", "NOISE_GAUSSIAN",
+__all__ = ["propose_rows", "normalise_rows", "resample_rows", "student_t_ll",
+           "common_mode_screen", "NOISE_GAUSSIAN",
            "NOISE_STUDENT_T", "NOISE_MIXTURE", "warm_up"]
 
 #: Noise-model codes of :func:`propose_rows` (the base model of a ``Scaled`` one).
@@ -345,6 +346,53 @@ def resample_rows(x, w, log_w, rows, u):
             log_w[r, p] = lw
 
 
+@njit(cache=True, fastmath=False, error_model="numpy")
+def common_mode_screen(x, log_w, sv, pr, used, sys_idx, clk0, cv, has_drift, drift, dt_step,
+                       threshold_m):
+    """Whether :func:`raimcore.algorithms.pf._common_mode` may see a clock jump: the main
+    filter's (``x[:, 0]``, ``log_w[:, 0]``) weighted-mean state, moved ``dt_step`` ahead,
+    and its predicted residuals, as there; True where any used satellite's residual is
+    above ``threshold_m`` less a margin of 1 m plus 1e-9 of the magnitudes involved (far
+    above the rounding of these sums taken in another order), so that False means the
+    exact computation finds no residual above ``threshold_m``: no jump.
+
+    ``x`` (R, Q, N, D), ``log_w`` (R, Q, N), ``sv`` (S, 3), ``pr`` (R, S) (NaN: 0, as
+    there), ``used`` (S,) bool, ``sys_idx`` (S,) int64.
+    """
+    rows, _, n, d = x.shape
+    m = np.empty(d)
+    for r in range(rows):
+        for i in range(d):
+            m[i] = 0.0
+        for p in range(n):
+            w = math.exp(log_w[r, 0, p])
+            for i in range(d):
+                m[i] += x[r, 0, p, i] * w
+        p0, p1, p2 = m[0], m[1], m[2]
+        if cv:
+            p0 += m[3] * dt_step
+            p1 += m[4] * dt_step
+            p2 += m[5] * dt_step
+        for j in range(sv.shape[0]):
+            if not used[j]:
+                continue
+            clk = m[clk0 + sys_idx[j]]
+            if has_drift:
+                clk += m[drift] * dt_step
+            y = pr[r, j]
+            if y != y:
+                y = 0.0
+            e0, e1, e2 = sv[j, 0] - p0, sv[j, 1] - p1, sv[j, 2] - p2
+            rng_m = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+            res = y - rng_m - clk
+            if res != res:
+                continue  # NaN: no jump there (pf.clock_jump)
+            size = abs(y) + rng_m + abs(clk)
+            if abs(res) > threshold_m - 1.0 - 1e-9 * size:
+                return True
+    return False
+
+
 def student_t_ll(ll, ll_prod, mask, nu, const):
     """Finish :func:`propose_rows`'s Student-t log-likelihoods in place: ``ll`` (R, N)
     ``+= ln ll_prod``, times ``-(nu + 1) / 2``, plus ``const`` per satellite in ``mask``
@@ -360,7 +408,7 @@ def warm_up() -> None:
     """Compile (or load from the on-disk cache) the kernels for the argument types a bank
     step passes, on a tiny bank: a later first real step pays nothing."""
     from ..measure.noise import StudentT
-    from .pf import ParticleBank, ProcessModel
+    from .pf import ParticleBank, ProcessModel, _may_jump
 
     rng = np.random.default_rng(0)
     sv = np.array([[2.0e7, 0.0, 0.0], [0.0, 2.0e7, 0.0], [0.0, 0.0, 2.0e7],
@@ -371,5 +419,6 @@ def warm_up() -> None:
     for model in (ProcessModel("static", 1, q_drift_mps2=0.2), ProcessModel("cv", 2)):
         y = np.zeros(x.shape[:-1] + (model.dim,))
         bank = ParticleBank(y, model, n_threshold=8.0, kernel="numba")
-        bank.step(1.0, sv, pr, np.ones(4, bool), np.array([0, 0, 1, 1]) % model.n_clk,
-                  StudentT(3.0), rng)
+        sys_idx = np.array([0, 0, 1, 1]) % model.n_clk
+        bank.step(1.0, sv, pr, np.ones(4, bool), sys_idx, StudentT(3.0), rng)
+        _may_jump(bank, 1.0, sv, np.tile(pr, (2, 1)), np.ones(4, bool), sys_idx)

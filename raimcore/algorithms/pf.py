@@ -66,7 +66,11 @@ resampling by counting copies, the cloud updated in place in cache-sized blocks;
 the ``"numba"`` one (the default where numba is installed, the ``fast`` extra), compiled
 loops over (filters, particles) doing the fast kernel's per-particle work in one pass
 (:mod:`._pf_numba`) from the same random numbers, drawn with numpy. All three agree to
-rounding (``tests/test_pf.py``); ``tests/benchmarks/bench_pf.py`` times them. The
+rounding (``tests/test_pf.py``); ``tests/benchmarks/bench_pf.py`` times them. Around them,
+a bank keeps the per-filter terms of its last steps by their inputs (:class:`_PrepCache`:
+they repeat while the satellites in view and the settled drift variance do), and
+:func:`run_llr_bank` screens each epoch for a clock jump before computing it
+(:func:`_may_jump`) and takes the LLRs of the whole run at once. The
 environment variable ``RAIM_STUDIO_NUMBA=0`` keeps numba out (the ``"fast"`` kernel).
 Calibrations are cached in memory and on disk (:func:`cached_samples`, :func:`cached_tau`).
 
@@ -492,8 +496,7 @@ def _clock_terms(a: float, beta, mask, sys_idx, q: int, noise,
     and the Gaussian posterior ``N(mu = gain m, P)`` of ``e`` given the medians ``m``;
     ``closed_form``: one system's scalars without the matrix functions (the fast kernel)."""
     batch = np.shape(beta)
-    w = np.where(mask, _noise_weight(noise), 0.0)
-    lam = w @ (sys_idx[:, None] == np.arange(q)).astype(float) / (math.pi / 2.0)
+    lam = _median_precision(mask, sys_idx, q, noise)
     informative = (lam > 0).any(-1) & (a > 0)
     if not a > 0:  # no per-system noise: e is the common (drift) part, from the prior
         chol_s = np.zeros(batch + (q, q))
@@ -528,6 +531,41 @@ def _clock_terms(a: float, beta, mask, sys_idx, q: int, noise,
 
 
 
+def _median_precision(mask, sys_idx, q: int, noise):
+    """``lam`` (..., q) of :func:`_clock_terms`: the precision ``sum_i w_i / (pi / 2)`` of
+    each system's median residual over the satellites in ``mask`` (..., S)."""
+    w = np.where(mask, _noise_weight(noise), 0.0)
+    return w @ (sys_idx[:, None] == np.arange(q)).astype(float) / (math.pi / 2.0)
+
+
+def _checked_sys_idx(sys_idx, q: int) -> np.ndarray:
+    """``sys_idx`` as the compiled loops take it (C-contiguous, writeable int64), checked to
+    lie in ``0..q - 1`` (they index the clock states by it, unchecked); the last few
+    checked index arrays are kept (a bank steps with the same one epoch after epoch)."""
+    key = (np.asarray(sys_idx).tobytes(), np.asarray(sys_idx).dtype.str, q)
+    hit = _SYS_IDX.get(key)
+    if hit is not None:
+        return hit
+    out = np.require(sys_idx, np.int64, ["C", "W"])
+    if out.size and not 0 <= out.min() <= out.max() < q:
+        raise ValueError(f"sys_idx must lie in 0..{q - 1} (the model's clock states)")
+    out = out.copy()  # kept: never the caller's array
+    if len(_SYS_IDX) >= 8:
+        _SYS_IDX.clear()
+    _SYS_IDX[key] = out
+    return out
+
+
+_SYS_IDX: dict[tuple, np.ndarray] = {}
+
+
+@functools.lru_cache(maxsize=8)
+def _unit_scale(rows: int, s_n: int):
+    """(rows, S) ones and zeros: the per-satellite noise factor of a model that has none,
+    and its logarithm (read-only for the compiled loops, never written)."""
+    return np.ones((rows, s_n)), np.zeros((rows, s_n))
+
+
 # -- the fast kernel of a bank step (ParticleBank(kernel="fast")) ----------------------------
 # The same random numbers in the same order and the same formulas as the reference
 # (_propose, normalise_log_weights, ...), with fewer and larger array operations: the
@@ -539,8 +577,10 @@ def _clock_terms(a: float, beta, mask, sys_idx, q: int, noise,
 #: Largest number of a system's satellites whose median uses a selection network (above
 #: it: a sort, as the reference).
 _NETWORK_MAX = 24
-#: Below this many values a sort is quicker than a network's per-comparator overhead.
-_NETWORK_MIN_VALUES = 8192
+#: Below this many values a sort is quicker than a network's per-comparator overhead
+#: (measured on 6 satellites: 4,200 values, 7 filters x 100 particles, network 15 us, sort
+#: 28 us; 1,260 values 11 and 9 us).
+_NETWORK_MIN_VALUES = 4096
 
 
 def _batcher_pairs(lo: int, hi: int):
@@ -588,6 +628,39 @@ def median_network(n_wires: int, outputs: tuple[int, ...]) -> tuple[tuple[int, i
     return tuple(reversed(keep))
 
 
+def _median_plan(mask, sys_idx, n_sys: int):
+    """Per system, what :func:`_masked_median` needs of ``mask`` (R, S) and ``sys_idx``
+    alone, or None for a system no filter sees: its satellites ``cols`` (all of them:
+    None), the masked-out entries (R, S_s), the counts (R,) > 0, the order statistics
+    ``lo``, ``hi`` (R,) and whether they are the same for every filter. The last few
+    masks' plans are kept (a bank's masks change only when the satellites in view do)."""
+    key = (mask.shape, mask.tobytes(), sys_idx.tobytes(), n_sys)
+    plan = _MEDIAN_PLANS.get(key)
+    if plan is not None:
+        return plan
+    plan = []
+    for s in range(n_sys):
+        cols = np.flatnonzero(sys_idx == s)
+        m = mask[:, cols]
+        cnt = m.sum(-1)
+        if cols.size == 0 or not cnt.any():
+            plan.append(None)
+            continue
+        lo, hi = np.maximum((cnt - 1) // 2, 0), cnt // 2
+        uniform = bool((lo == lo[0]).all() and (hi == hi[0]).all())
+        outputs = tuple(sorted(set(lo.tolist()) | set(hi.tolist())))
+        every = cols.size == sys_idx.size  # one system: no gather needed
+        plan.append((None if every else cols, ~m, cnt[:, None] > 0, lo, hi, uniform,
+                     outputs, cols.size))
+    if len(_MEDIAN_PLANS) >= 16:
+        _MEDIAN_PLANS.clear()
+    _MEDIAN_PLANS[key] = plan
+    return plan
+
+
+_MEDIAN_PLANS: dict[tuple, list] = {}
+
+
 def _masked_median(resid, mask, sys_idx, n_sys: int):
     """:func:`_system_median` in the fast kernel's layout: ``resid`` (R, S, N) (satellite
     before particle), ``mask`` (R, S) -> (R, n_sys, N). The same values (the same order
@@ -597,17 +670,13 @@ def _masked_median(resid, mask, sys_idx, n_sys: int):
     satellites (above :data:`_NETWORK_MAX`)."""
     r_n, _, n = resid.shape
     out = np.zeros((r_n, n_sys, n))
-    for s in range(n_sys):
-        cols = np.flatnonzero(sys_idx == s)
-        m = mask[:, cols]
-        cnt = m.sum(-1)
-        if cols.size == 0 or not cnt.any():
+    for s, plan in enumerate(_median_plan(mask, np.asarray(sys_idx), n_sys)):
+        if plan is None:
             continue
-        buf = resid[:, cols, :]  # a copy (fancy index)
-        buf[~m] = np.inf
-        lo, hi = np.maximum((cnt - 1) // 2, 0), cnt // 2
-        uniform = bool((lo == lo[0]).all() and (hi == hi[0]).all())
-        if cols.size > _NETWORK_MAX or buf.size <= _NETWORK_MIN_VALUES:
+        cols, off, seen, lo, hi, uniform, outputs, size = plan
+        if size > _NETWORK_MAX or r_n * size * n <= _NETWORK_MIN_VALUES:
+            buf = resid[:, cols, :] if cols is not None else resid.copy()
+            buf[off] = np.inf
             buf.sort(axis=1)
             if uniform:
                 med = buf[:, lo[0]] + buf[:, hi[0]]
@@ -615,19 +684,22 @@ def _masked_median(resid, mask, sys_idx, n_sys: int):
                 rows = np.arange(r_n)
                 med = buf[rows, lo] + buf[rows, hi]
         else:
-            outputs = tuple(sorted(set(lo.tolist()) | set(hi.tolist())))
-            wires = list(np.moveaxis(buf, 1, 0))
-            for i, j in median_network(cols.size, outputs):
+            # The wires (S_s, R, N), each a contiguous (R, N) array.
+            buf = (resid[:, cols, :] if cols is not None else resid).transpose(1, 0, 2).copy()
+            buf[off.T] = np.inf
+            wires = list(buf)
+            for i, j in median_network(size, outputs):
                 a, b = wires[i], wires[j]
                 wires[i] = np.minimum(a, b)
                 np.maximum(a, b, out=b)
             if uniform:
                 med = wires[lo[0]] + wires[hi[0]]
             else:
-                med = (np.stack([wires[k][r] for r, k in enumerate(lo.tolist())])
-                       + np.stack([wires[k][r] for r, k in enumerate(hi.tolist())]))
+                rows = np.arange(r_n)
+                st = np.stack(wires)
+                med = st[lo, rows] + st[hi, rows]
         med *= 0.5
-        out[:, s] = np.where(cnt[:, None] > 0, med, 0.0)
+        out[:, s] = np.where(seen, med, 0.0)
     return out
 
 
@@ -744,50 +816,111 @@ def _blocks(rows: int, n: int, s_n: int):
             yield slice(i, i + 1), slice(j, j + run)
 
 
-def _propose_fast(x, dt_s, model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx, noise,
-                  q_scale, q_scale_vel, drift_var, reset_var: float = 0.0):
-    """:func:`_propose` on C-contiguous particles ``x`` (..., N, D), updated in place: the
-    same draws and formulas, the (S, N) arrays satellite-major, one system's clock in
-    scalars, every per-particle step (move, residuals, proposal, likelihood, drift) done
-    block by block (:func:`_blocks`); returns ``(log_ratio, ll)`` (..., N)."""
-    batch, n, q, d = x.shape[:-2], x.shape[-2], model.n_clk, x.shape[-1]
+class _PrepCache:
+    """Per-filter terms of a bank's last few steps (:func:`_fast_terms`,
+    :meth:`ParticleBank._prep_numba`), by their inputs and for one noise model (kept
+    alive, compared by identity). They depend on the masks, the noise model, the step and
+    the drift variance only: between changes of the satellites in view, and once the drift
+    variance has settled (its Riccati step reaches a fixed point within tens of epochs), a
+    bank's steps repeat them."""
+
+    def __init__(self, size: int = 4):
+        self.size, self.noise, self.items = size, None, {}
+
+    def get(self, key, noise):
+        return self.items.get(key) if noise is self.noise else None
+
+    def put(self, key, noise, value) -> None:
+        if noise is not self.noise:
+            self.noise, self.items = noise, {}
+        if len(self.items) >= self.size:
+            self.items.clear()
+        self.items[key] = value
+
+
+def _fast_terms(model: ProcessModel, batch, mask_b, sys_idx, noise, dt_s: float,
+                q_scale: float, drift_var, reset_var: float):
+    """The per-filter inputs of :func:`_propose_fast`, flattened over the filters (rows):
+    masks (rows, S) and as floats (rows, 1, S), the clock proposal's terms
+    (:func:`_clock_terms`), whether any filter is informative, the drift's gain and the
+    drift variance after the step (:func:`drift_step_var`; None without a drift state)."""
+    q = model.n_clk
     dt = max(float(dt_s), 0.0)
-    sys_idx = np.asarray(sys_idx, dtype=int)
-    noise_std = rng.standard_normal(x.shape)
-    z = rng.standard_normal(batch + (n, q))
-    pick = rng.random(batch + (n,))
-    clk = model.clocks
+    rows = math.prod(batch)
+    s_n = mask_b.shape[-1]
     a = (model.q_clk_mps * q_scale)**2 * dt + reset_var
     beta = np.zeros(batch)
-    rows = int(np.prod(batch, dtype=int))
-    xf, noise_f = x.reshape((rows, n, d)), noise_std.reshape((rows, n, d))
+    drift_gain = drift_var_next = None
     if model.has_drift:
+        drift_var_next = drift_step_var(model, drift_var, dt_s, q_scale, reset_var)
         beta = np.broadcast_to(_drift_terms(model, drift_var, dt, q_scale)[1], batch)
-        # _condition_drift's gain per filter, applied block by block below.
+        # _condition_drift's gain per filter, applied block by block (_propose_fast).
         a_d, beta_d, c_d = _drift_terms(model, np.broadcast_to(drift_var, batch), dt, q_scale,
                                         reset_var)
         den = a_d + q * beta_d
         drift_gain = np.where(den > 0, c_d / np.where(den > 0, den, 1.0), 0.0).reshape(rows)
-    sv = np.asarray(pos_sv_ecef_m, dtype=float)
-    s_n = sv.shape[-2]
+
     def flat(arr, k):  # (rows, *last k axes of arr), broadcast over the batch
         tail = arr.shape[arr.ndim - k:]
         if arr.shape[:arr.ndim - k] != batch:
             arr = np.broadcast_to(arr, batch + tail)
         return arr.reshape((rows,) + tail)
 
-    mask_b = np.broadcast_to(np.asarray(mask, dtype=bool), batch + (s_n,))
     t = _clock_terms(a, beta, mask_b, sys_idx, q, noise, closed_form=True)
-    svf, prf = flat(sv, 2), flat(np.asarray(pr_m, dtype=float), 1)
-    mf = mask_b.reshape(rows, s_n)
-    zf, pick_f, inff, cs = (z.reshape(rows, n, q), pick.reshape(rows, n),
-                            flat(t.informative, 0), flat(t.chol_s, 2))
+    mf = mask_b.reshape(rows, s_n).copy()  # kept: never a view of the caller's masks
+    inff, cs = flat(t.informative, 0), flat(t.chol_s, 2)
     any_inf = bool(inff.any())
+    gain = chol_p = s_inv = p_inv = hls = hlp = None
     if any_inf:
         gain, chol_p = flat(t.gain, 2), flat(t.chol_p, 2)
         s_inv, p_inv = flat(t.s_inv, 2), flat(t.p_inv, 2)
         hls, hlp = flat(t.half_logdet_s, 0), flat(t.half_logdet_p, 0)
-    mwf = mf.astype(float)[:, None, :]
+    return (mf, mf.astype(float)[:, None, :], inff, cs, any_inf, gain, chol_p, s_inv,
+            p_inv, hls, hlp, drift_gain, drift_var_next)
+
+
+def _propose_fast(x, dt_s, model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx, noise,
+                  q_scale, q_scale_vel, drift_var, reset_var: float = 0.0, cache=None):
+    """:func:`_propose` on C-contiguous particles ``x`` (..., N, D), updated in place: the
+    same draws and formulas, the (S, N) arrays satellite-major, one system's clock in
+    scalars, every per-particle step (move, residuals, proposal, likelihood, drift) done
+    block by block (:func:`_blocks`); returns ``(log_ratio, ll)`` (..., N) and the drift
+    variance after the step (:func:`drift_step_var`; None without a drift state).
+    ``cache``: a :class:`_PrepCache` keeping the per-filter terms (:func:`_fast_terms`)
+    across steps."""
+    batch, n, q, d = x.shape[:-2], x.shape[-2], model.n_clk, x.shape[-1]
+    dt = max(float(dt_s), 0.0)
+    sys_idx = np.asarray(sys_idx, dtype=int)
+    # One draw for both standard normal arrays (a Generator fills an array element by
+    # element in C order: the same numbers as two draws one after the other).
+    rows = math.prod(batch)
+    size_x = rows * n * d
+    normals = rng.standard_normal(size_x + rows * n * q)
+    noise_std, z = normals[:size_x].reshape(x.shape), normals[size_x:]
+    pick = rng.random(rows * n)
+    clk = model.clocks
+    xf, noise_f = x.reshape((rows, n, d)), noise_std.reshape((rows, n, d))
+    sv = np.asarray(pos_sv_ecef_m, dtype=float)
+    s_n = sv.shape[-2]
+    mask = np.asarray(mask, dtype=bool)
+    mask_b = mask if mask.shape == batch + (s_n,) else np.broadcast_to(mask, batch + (s_n,))
+    key = (mask_b.shape, mask_b.tobytes(), sys_idx.tobytes(), float(dt_s), q_scale,
+           reset_var, np.shape(drift_var), np.asarray(drift_var).tobytes())
+    terms = None if cache is None else cache.get(key, noise)
+    if terms is None:
+        terms = _fast_terms(model, batch, mask_b, sys_idx, noise, dt_s, q_scale, drift_var,
+                            reset_var)
+        if cache is not None:
+            cache.put(key, noise, terms)
+    (mf, mwf, inff, cs, any_inf, gain, chol_p, s_inv, p_inv, hls, hlp, drift_gain,
+     drift_var_next) = terms
+    svf = np.empty((rows, s_n, 3))
+    svf.reshape(batch + (s_n, 3))[...] = sv
+    prf = np.asarray(pr_m, dtype=float)
+    if prf.shape != batch + (s_n,):
+        prf = np.broadcast_to(prf, batch + (s_n,))
+    prf = prf.reshape(rows, s_n)
+    zf, pick_f = z.reshape(rows, n, q), pick.reshape(rows, n)
     log_ratio = np.zeros((rows, n))
     ll = np.empty((rows, n))
     alpha = PROPOSAL_DEFENSIVE
@@ -851,7 +984,7 @@ def _propose_fast(x, dt_s, model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx, noise
                 xb[..., model.drift] += drift_gain[sl, None] * ec.sum(-1)
             resid -= np.moveaxis(ec, -1, 1)[:, sys_idx, :]
         ll[pp] = _log_likelihood_rows(noise, resid, mwf[sl])
-    return log_ratio.reshape(batch + (n,)), ll.reshape(batch + (n,))
+    return log_ratio.reshape(batch + (n,)), ll.reshape(batch + (n,)), drift_var_next
 
 
 def _resample_fast(w, rng: np.random.Generator):
@@ -868,7 +1001,8 @@ def _resample_fast(w, rng: np.random.Generator):
     c *= n
     c -= u
     np.ceil(c, out=c)
-    np.clip(c, 0.0, n, out=c)
+    np.maximum(c, 0.0, out=c)  # np.clip's values (up to the sign of a zero), quicker
+    np.minimum(c, n, out=c)
     c[:, 1:] -= c[:, :-1].copy()  # the copies of each particle
     return np.repeat(np.arange(g * n), c.astype(np.intp).reshape(-1))
 
@@ -1375,6 +1509,8 @@ class ParticleBank:
         self.n_threshold = 2.0 * n / 3.0 if n_threshold is None else float(n_threshold)
         self.drift_var = np.array(np.broadcast_to(np.asarray(drift_var, dtype=float),
                                                   self.particles.shape[:-2]))
+        # The per-filter terms of the last few steps (_fast_terms, _prep_numba).
+        self._prep = _PrepCache()
 
     @property
     def n_particles(self) -> int:
@@ -1445,11 +1581,11 @@ class ParticleBank:
         flattened bank: one cumsum and one searchsorted)."""
         x = self.particles
         drift_var = self.drift_var
-        log_ratio, ll = _propose_fast(x, dt_s, self.model, rng, pos_sv_ecef_m, pr_m, mask,
-                                      sys_idx, noise, q_scale, q_scale_vel, drift_var,
-                                      reset_var)
-        if self.model.has_drift:
-            self.drift_var = drift_step_var(self.model, drift_var, dt_s, q_scale, reset_var)
+        log_ratio, ll, drift_var_next = _propose_fast(
+            x, dt_s, self.model, rng, pos_sv_ecef_m, pr_m, mask, sys_idx, noise, q_scale,
+            q_scale_vel, drift_var, reset_var, cache=self._prep)
+        if drift_var_next is not None:
+            self.drift_var = drift_var_next.copy()  # changed in place by jumps and restarts
         # seed 002 eq. (weights), as in step: w_k = w_{k-1} p(z_k | x_k) r, normalised.
         log_w = ll
         log_w += self.log_w
@@ -1481,35 +1617,26 @@ class ParticleBank:
         self.log_w = log_w
         return StepResult(log_norm[..., 0], n_eff, est, need)
 
-    def _step_numba(self, nb, codes, dt_s, pos_sv_ecef_m, pr_m, mask, sys_idx, noise, rng,
-                    q_scale, q_scale_vel, reset_var) -> StepResult:
-        """:meth:`_step_fast` by the compiled loops (:mod:`._pf_numba`): the same random
-        numbers drawn in the same order here, the same per-filter terms
-        (:func:`_clock_terms`), the per-particle work in one compiled pass."""
-        model = self.model
-        x = np.require(self.particles, float, ["C", "W"])
-        batch, n, q, d = x.shape[:-2], x.shape[-2], model.n_clk, x.shape[-1]
-        rows = int(np.prod(batch, dtype=int))
+    def _prep_numba(self, key, mask_b, sys_idx, noise, dt_s, q_scale, reset_var, batch,
+                    s_n: int):
+        """The per-filter inputs of :meth:`_step_numba` (kept under ``key`` for ``noise``):
+        the masks (rows, S), the clock proposal's terms (:func:`_clock_terms`) flattened
+        over the filters, whether each filter is informative (rows,), the drift's gain
+        (rows,) and the drift variance after the step (None without a drift state)."""
+        model, q = self.model, self.model.n_clk
+        rows = math.prod(batch)
         dt = max(float(dt_s), 0.0)
-        # Every array the compiled loops see is C-contiguous and writeable (one compiled
-        # signature: a read-only view would be another type, compiled again).
-        sys_idx = np.require(sys_idx, np.int64, ["C", "W"])
-        if sys_idx.size and not 0 <= sys_idx.min() <= sys_idx.max() < q:
-            # The compiled loops index the clock states by it, unchecked.
-            raise ValueError(f"sys_idx must lie in 0..{q - 1} (the model's clock states)")
-        # The fast kernel's draws, in its order (_propose_fast).
-        noise_std = rng.standard_normal(x.shape)
-        z = rng.standard_normal(batch + (n, q))
-        pick = rng.random(batch + (n,))
         a = (model.q_clk_mps * q_scale)**2 * dt + reset_var
         drift_var = self.drift_var
         beta = np.zeros(batch)
         drift_gain = np.zeros(rows)
+        drift_var_next = None
         if model.has_drift:
             # _drift_terms once for the proposal's beta (it does not depend on reset_var),
             # the drift's gain (_propose_fast) and its variance after the step
             # (drift_step_var): the same operations on the same values.
-            _, beta_d, c_d = _drift_terms(model, np.broadcast_to(drift_var, batch), dt,
+            _, beta_d, c_d = _drift_terms(model, drift_var if np.shape(drift_var) == batch
+                                          else np.broadcast_to(drift_var, batch), dt,
                                           q_scale, reset_var)
             beta = beta_d
             den = a + q * beta_d
@@ -1517,10 +1644,8 @@ class ParticleBank:
             safe = np.where(pos, den, 1.0)
             drift_gain = np.where(pos, c_d / safe, 0.0).reshape(rows)
             red = np.where(pos, q * c_d * c_d / safe, 0.0)
-            self.drift_var = np.maximum(np.asarray(drift_var, float)
+            drift_var_next = np.maximum(np.asarray(drift_var, float)
                                         + model.q_drift_mps2**2 * dt - red, 0.0)
-        sv = np.asarray(pos_sv_ecef_m, dtype=float)
-        s_n = sv.shape[-2]
 
         def flat(arr, k, dtype=float):  # (rows, *last k axes), broadcast, contiguous
             tail = arr.shape[arr.ndim - k:]
@@ -1531,18 +1656,69 @@ class ParticleBank:
             out.reshape(batch + tail)[...] = arr
             return out
 
-        mask_b = np.broadcast_to(np.asarray(mask, dtype=bool), batch + (s_n,))
         t = _clock_terms(a, beta, mask_b, sys_idx, q, noise, closed_form=True)
-        mf = flat(mask_b, 1, bool)
-        prf = flat(np.asarray(pr_m, dtype=float), 1)
-        prf = np.where(mf & np.isfinite(prf), prf, 0.0)
-        zeros_qq, zeros_r = np.zeros((rows, q, q)), np.zeros(rows)
+        mf = flat(mask_b, 1, bool).copy()  # kept: never a view of the caller's masks
+        if any(m is None for m in (t.gain, t.half_logdet_s)):
+            zeros_qq, zeros_r = np.zeros((rows, q, q)), np.zeros(rows)
         mats = [zeros_qq if m is None else flat(m, 2)
                 for m in (t.gain, t.chol_p, t.s_inv, t.p_inv)]
         hls, hlp = (zeros_r if v is None else flat(v, 0)
                     for v in (t.half_logdet_s, t.half_logdet_p))
+        terms = (flat(t.informative, 0, bool), flat(t.chol_s, 2), *mats, hls, hlp)
+        prep = (mf, terms, t.informative.reshape(rows), drift_gain, drift_var_next)
+        self._prep.put(key, noise, prep)
+        return prep
+
+    def _step_numba(self, nb, codes, dt_s, pos_sv_ecef_m, pr_m, mask, sys_idx, noise, rng,
+                    q_scale, q_scale_vel, reset_var) -> StepResult:
+        """:meth:`_step_fast` by the compiled loops (:mod:`._pf_numba`): the same random
+        numbers drawn in the same order here, the same per-filter terms
+        (:func:`_clock_terms`), the per-particle work in one compiled pass."""
+        model = self.model
+        x = self.particles
+        if not (x.flags.c_contiguous and x.flags.writeable and x.dtype == np.float64):
+            x = np.require(x, float, ["C", "W"])
+        batch, n, q, d = x.shape[:-2], x.shape[-2], model.n_clk, x.shape[-1]
+        rows = math.prod(batch)
+        dt = max(float(dt_s), 0.0)
+        # Every array the compiled loops see is C-contiguous and writeable (one compiled
+        # signature: a read-only view would be another type, compiled again).
+        sys_idx = _checked_sys_idx(sys_idx, q)
+        # The fast kernel's draws, in its order (_propose_fast): the two standard normal
+        # arrays as one draw (a Generator fills an array element by element in C order, so
+        # one draw of both sizes is the two draws one after the other: the same numbers).
+        size_x, size_z = rows * n * d, rows * n * q
+        normals = rng.standard_normal(size_x + size_z)
+        noise_std, z = normals[:size_x], normals[size_x:]
+        pick = rng.random(rows * n)
+        sv = np.asarray(pos_sv_ecef_m, dtype=float)
+        s_n = sv.shape[-2]
+        mask = np.asarray(mask, dtype=bool)
+        mask_b = (mask if mask.shape == batch + (s_n,)
+                  else np.broadcast_to(mask, batch + (s_n,)))
+        drift_var = self.drift_var
+        # The per-filter terms, kept across steps by their inputs (_PrepCache).
+        key = (mask_b.shape, mask_b.tobytes(), sys_idx.tobytes(), float(dt_s), q_scale,
+               reset_var, np.shape(drift_var), np.asarray(drift_var).tobytes())
+        prep = self._prep.get(key, noise)
+        if prep is None:
+            prep = self._prep_numba(key, mask_b, sys_idx, noise, dt_s, q_scale, reset_var,
+                                    batch, s_n)
+        mf, terms, inf, drift_gain, drift_var_next = prep
+        if drift_var_next is not None:
+            self.drift_var = drift_var_next.copy()  # changed in place by jumps and restarts
         kind, is_scaled, sigma, nu, eps, mix_scale, const, scale = codes
-        scale_f = flat(np.broadcast_to(scale, (s_n,)), 1)
+        if is_scaled:
+            scale_f = np.empty((rows, s_n))
+            scale_f[...] = scale
+            log_scale_f = np.log(scale_f)
+        else:  # ones and their logarithm, never written by the compiled loops
+            scale_f, log_scale_f = _unit_scale(rows, s_n)
+        prf = np.empty((rows, s_n))
+        prf.reshape(batch + (s_n,))[...] = pr_m
+        prf = np.where(mf & np.isfinite(prf), prf, 0.0)
+        svf = np.empty((rows, s_n, 3))
+        svf.reshape(batch + (s_n, 3))[...] = sv
         sq1 = math.sqrt(max(dt_s, 0.0))
         c_pos = model.q_pos_mps * (q_scale * sq1)
         c_vel = model.q_vel_mps2 * q_scale_vel * sq1
@@ -1550,12 +1726,11 @@ class ParticleBank:
         xf = x.reshape(rows, n, d)
         log_s, log_p, ll, ll_prod = (np.empty((rows, n)) for _ in range(4))
         nb.propose_rows(xf, noise_std.reshape(rows, n, d), z.reshape(rows, n, q),
-                        pick.reshape(rows, n), flat(sv, 2), prf, mf, sys_idx, q,
+                        pick.reshape(rows, n), svf, prf, mf, sys_idx, q,
                         model.clk0, model.kind == "cv", float(dt_s), c_pos, c_vel,
-                        model.has_drift, model.drift, dt, flat(t.informative, 0, bool),
-                        flat(t.chol_s, 2), *mats, hls, hlp, drift_gain, alpha,
+                        model.has_drift, model.drift, dt, *terms, drift_gain, alpha,
                         math.log1p(-alpha), kind, is_scaled, sigma, nu, eps, mix_scale, const,
-                        scale_f, np.log(scale_f), log_s, log_p, ll, ll_prod)
+                        scale_f, log_scale_f, log_s, log_p, ll, ll_prod)
         if kind == 1 and not is_scaled:
             nb.student_t_ll(ll, ll_prod, mf, nu, const)
         # ln r = log_s - logaddexp(log_p, log_s + ln alpha) (_propose_fast), numpy's
@@ -1569,12 +1744,14 @@ class ParticleBank:
         np.log1p(log_p, out=log_p)
         log_p += top
         log_ratio = np.subtract(log_s, log_p, out=log_s)
-        inf = t.informative.reshape(rows)
         if not inf.all():
             log_ratio[~inf] = 0.0
-        log_w = (np.require(self.log_w, float, ["C", "W"])
-                 if np.shape(self.log_w) == batch + (n,)
-                 else np.array(np.broadcast_to(self.log_w, batch + (n,)), dtype=float))
+        log_w = self.log_w
+        if np.shape(log_w) != batch + (n,):
+            log_w = np.array(np.broadcast_to(log_w, batch + (n,)), dtype=float)
+        elif not (log_w.flags.c_contiguous and log_w.flags.writeable
+                  and log_w.dtype == np.float64):
+            log_w = np.require(log_w, float, ["C", "W"])
         log_w = log_w.reshape(rows, n)
         log_norm, n_eff = np.empty(rows), np.empty(rows)
         est, need = np.empty((rows, d)), np.empty(rows, dtype=bool)
@@ -1872,26 +2049,35 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
     # drifting there at q_pos (minutes) while the test is armed.
     boost = max(noise.sigma_m / max(model.q_pos_mps, 1e-3), 1.0)
     boost_vel = max(VEL_BOOST * vel_sd / max(model.q_vel_mps2, 1e-3), 1.0)
+    # Everything of the loop below that does not depend on the filters, once for the run:
+    # the filters' masks (1, Q, S) per epoch (none where not available), the steps, and
+    # the predictive likelihoods kept for the LLRs (taken after the loop).
+    masks = (drop[None] & used[:, None, :]) & available[:, None, None]
+    dt_step = np.diff(np.asarray(t_s, dtype=float), prepend=np.nan).tolist()
+    t_list = np.asarray(t_s, dtype=float).tolist()
+    avail, fresh_l, relearn_l = available.tolist(), fresh.tolist(), relearn_at.tolist()
+    log_pred = np.zeros((r_n, e_n, q_n))
+    sys_idx = np.asarray(sys_idx)
     for k in range(k0 + 1, e_n):
         frac = min((k - k0 - 1) / max(burn_in, 1), 1.0)
         q_scale = 1.0 + (boost - 1.0) * (1.0 - frac) ** 2
         q_scale_vel = 1.0 + (boost_vel - 1.0) * (1.0 - frac) ** 2
-        mask = drop & used[k][None, :] if available[k] else np.zeros((q_n, s_n), bool)
+        noise_k = noise_at(k)
+        svk, prk = sv[k], pr[:, k]
         k_last = k_prev
-        if fresh[k]:
-            _centre_clock(bank, k, t_s[k] - t_s[k - 1], sv[k], pr[:, k], used[k], sys_idx,
-                          n_sys, jumps)
+        if fresh_l[k]:
+            _centre_clock(bank, k, dt_step[k], svk, prk, used[k], sys_idx, n_sys, jumps)
             jumped = np.zeros_like(jumped)  # a restart is no evidence of a wrong drift
             k_prev = k
-        elif available[k]:
-            jumped = _absorb_clock_jump(bank, k, t_s[k] - t_s[k_prev], t_s[k] - t_s[k - 1],
-                                        sv[k], pr[:, k], used[k], sys_idx, n_sys,
-                                        noise_at(k), jumped, jumps, rng)
+        elif avail[k]:
+            jumped = _absorb_clock_jump(bank, k, t_list[k] - t_list[k_prev], dt_step[k], svk,
+                                        prk, used[k], sys_idx, n_sys, noise_k, jumped, jumps,
+                                        rng)
             k_prev = k
-        res = bank.step(t_s[k] - t_s[k - 1], sv[k][None, None], pr[:, k][:, None, :],
-                        mask[None], sys_idx, noise_at(k), rng, q_scale, q_scale_vel,
-                        reset_var=CLOCK_RESET_SD_M**2 if fresh[k] else 0.0)
-        if relearn_at[k]:
+        res = bank.step(dt_step[k], svk[None, None], prk[:, None, :], masks[k][None],
+                        sys_idx, noise_k, rng, q_scale, q_scale_vel,
+                        reset_var=CLOCK_RESET_SD_M**2 if fresh_l[k] else 0.0)
+        if relearn_l[k]:
             _restart_drift(bank, k_last, k, t_s, sv, pr, used, sys_idx, n_sys,
                            noise_at(k_last))
         estimate[:, k] = res.estimate
@@ -1899,15 +2085,18 @@ def run_llr_bank(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, noise,
             cloud[k] = bank.particles[0, 0][pick]
             wk = np.exp(bank.log_w[0, 0][pick])
             cloud_w[k] = wk / wk.sum()
-        if available[k]:
+        if avail[k]:
             n_eff[:, k] = res.n_eff
-            if k >= first_llr:
-                # seed 002 LLR as the spec reads it: each filter scores its own set,
-                # s_j(k) = ln p_aux_j(y^(-j) | Y_{k-1}) - ln p_main(y | Y_{k-1}).
-                llr[:, k] = np.where(used[k], res.log_pred[:, 1:] - res.log_pred[:, :1], 0.0)
-                if fresh[k]:  # the clock's share, not evidence about satellite j
-                    occam, alone = clock_occam(used[k], sys_idx, n_sys, noise_at(k))
-                    llr[:, k] = np.where(alone, 0.0, llr[:, k] - occam)
+            log_pred[:, k] = res.log_pred
+    # seed 002 LLR as the spec reads it: each filter scores its own set,
+    # s_j(k) = ln p_aux_j(y^(-j) | Y_{k-1}) - ln p_main(y | Y_{k-1}), from the first
+    # available epoch after the burn-in on.
+    scored = available & (np.arange(e_n) >= max(first_llr, k0 + 1))
+    llr[:] = np.where(used[None] & scored[None, :, None],
+                      log_pred[:, :, 1:] - log_pred[:, :, :1], 0.0)
+    for k in np.flatnonzero(scored & fresh):  # the clock's share, not evidence about j
+        occam, alone = clock_occam(used[k], sys_idx, n_sys, noise_at(k))
+        llr[:, k] = np.where(alone, 0.0, llr[:, k] - occam)
     # Sliding-window sum S_j(k) = sum_{t = k-W+1..k} s_j(t) (seed 002 section 2.2).
     c = np.concatenate([np.zeros((r_n, 1, s_n)), np.cumsum(llr, axis=1)], axis=1)
     lo = np.maximum(np.arange(e_n) + 1 - window, 0)
@@ -1937,6 +2126,39 @@ def _common_mode(bank: ParticleBank, dt_step: float, sv, pr, used, sys_idx, n_sy
     rng_m = np.linalg.norm(sv[None] - pos[:, None], axis=-1)
     resid = np.where(np.isnan(pr), 0.0, pr) - rng_m - clk[:, np.asarray(sys_idx, dtype=int)]
     return clock_jump(resid, used[None], sys_idx, n_sys, threshold_m)
+
+
+def _may_jump(bank: ParticleBank, dt_step: float, sv, pr, used, sys_idx) -> bool:
+    """False where :func:`_common_mode` at :data:`CLOCK_JUMP_M` is certainly all 0 (no
+    predicted residual of the main filter above it: :func:`clock_jump` then finds no jump),
+    found without its array passes: by the compiled screen
+    (:func:`._pf_numba.common_mode_screen`, with a margin over the rounding) for a numba
+    bank, else by the same residuals as :func:`_common_mode`'s, in fewer operations. True:
+    compute the jumps."""
+    model = bank.model
+    if bank.kernel == "numba":
+        req = _c_writeable
+        return bool(_numba_module().common_mode_screen(
+            req(bank.particles), req(bank.log_w), req(sv), req(pr), req(used, np.bool_),
+            _checked_sys_idx(sys_idx, model.n_clk), model.clk0, model.kind == "cv",
+            model.has_drift, model.drift, float(dt_step), CLOCK_JUMP_M))
+    m = weighted_mean(bank.particles[:, 0], np.exp(bank.log_w[:, 0]))  # as _common_mode
+    pos = m[:, :3] + (m[:, 3:6] * dt_step if model.kind == "cv" else 0.0)
+    clk = m[:, model.clocks]
+    if model.has_drift:
+        clk = clk + m[:, model.drift, None] * dt_step
+    rng_m = np.linalg.norm(sv[None] - pos[:, None], axis=-1)
+    resid = np.where(np.isnan(pr), 0.0, pr) - rng_m - clk[:, np.asarray(sys_idx, dtype=int)]
+    return bool((used & (np.abs(resid) > CLOCK_JUMP_M)).any())  # clock_jump's first test
+
+
+def _c_writeable(a, dtype=np.float64) -> np.ndarray:
+    """``a`` as a C-contiguous writeable array of ``dtype`` (itself if it is one already:
+    one compiled signature for the compiled loops)."""
+    if (isinstance(a, np.ndarray) and a.dtype == dtype and a.flags.c_contiguous
+            and a.flags.writeable):
+        return a
+    return np.require(a, dtype, ["C", "W"])
 
 
 def _centre_clock(bank: ParticleBank, k: int, dt_step: float, sv, pr, used, sys_idx,
@@ -1978,6 +2200,8 @@ def _absorb_clock_jump(bank: ParticleBank, k: int, dt_avail: float, dt_step: flo
     shift the clock offsets of every filter by it (:func:`run_llr_bank`); returns the
     per-system "jumped" flags (R, q) and writes the jumps into ``jumps[:, k]``."""
     model = bank.model
+    if not _may_jump(bank, dt_step, sv, pr, used, sys_idx):
+        return np.zeros_like(jumped)
     jump = _common_mode(bank, dt_step, sv, pr, used, sys_idx, n_sys, CLOCK_JUMP_M)  # (R, q)
     hit = jump != 0.0
     if not hit.any():
