@@ -136,16 +136,19 @@ class Dashboard:
 
 
 def warm_kernels() -> bool:
-    """Compile, or load from numba's on-disk cache, the particle filters' compiled kernels
-    (:func:`raimcore.algorithms._pf_numba.warm_up`, a tiny bank step) so that the first
-    PF-LLR change of a session does not pay it (about 4 s cold, 0.2 s cached); False
-    where they do not run here (numba missing or ``RAIM_STUDIO_NUMBA=0``)."""
+    """Compile, or load from numba's on-disk cache, the compiled kernels of the particle
+    filters (:func:`raimcore.algorithms._pf_numba.warm_up`, a tiny bank step) and of ARAIM
+    (:func:`raimcore.araim._numba.warm_up`) so that the first PF-LLR or ARAIM change of a
+    session does not pay it (about 4 s and 3 s cold, 0.2 s and 0.5 s cached); False where
+    they do not run here (numba missing or ``RAIM_STUDIO_NUMBA=0``)."""
     from raimcore.algorithms import pf
+    from raimcore.araim import kernel
 
-    nb = pf.numba_kernels()
-    if nb is None:
+    nb_pf, nb_araim = pf.numba_kernels(), kernel.numba_kernels()
+    if nb_pf is None or nb_araim is None:
         return False
-    nb.warm_up()
+    nb_pf.warm_up()
+    nb_araim.warm_up()
     return True
 
 

@@ -846,3 +846,109 @@ def test_fast_path_equals_reference_on_the_four_system_recording(shared_data, mo
     ref = _mhss_module._mhss(*a, reference=True, **k)
     assert_same_result(fast, ref)
     assert np.all(fast.status == "ok") and fast.modes.valid.sum(axis=1).min() > 300
+
+
+# ------------------------------------------- compiled kernels (numba) vs the numpy path
+# ``raimcore.araim._numba`` computes the down-dated subset statistics and the PL equations
+# with their bracket; ``RAIM_STUDIO_NUMBA=0`` (read at each call) runs the numpy path.
+# Same statuses, alarms, exclusions, ``*_set_by`` and mode counts; numbers to rounding.
+_kernel_module = importlib.import_module("raimcore.araim.kernel")
+needs_numba = pytest.mark.skipif(_kernel_module.numba_kernels() is None,
+                                 reason="numba not installed (the fast extra) or disabled")
+
+
+def numba_and_numpy(monkeypatch, fn):
+    """``fn()`` with the compiled kernels, then with the numpy path; checks that each ran."""
+    calls = []
+    nb = _kernel_module.numba_kernels()
+    for name in ("downdate_modes", "pl_equations"):
+        real = getattr(nb, name)
+
+        def counted(*a, _real=real, _name=name):
+            calls.append(_name)
+            return _real(*a)
+
+        monkeypatch.setattr(nb, name, counted)
+    compiled = fn()
+    assert {"downdate_modes", "pl_equations"} <= set(calls)
+    calls.clear()
+    monkeypatch.setenv(_kernel_module.NUMBA_ENV, "0")
+    plain = fn()
+    assert not calls
+    monkeypatch.delenv(_kernel_module.NUMBA_ENV)
+    return compiled, plain
+
+
+@needs_numba
+@pytest.mark.parametrize("make, kw", [
+    (random_batch, {"fde": True}),
+    (random_four_systems, {"fde": True}),
+    (random_four_systems, {"fde": True, "max_pmd": True, "n_es_int": 25.0,
+                           "t_exp_over_mfd": 150.0 / 3600.0}),
+    (random_four_systems_high_priors, {"fde": True}),
+    (random_four_systems, {"fde": True, "rules": B2012}),
+    (random_four_systems, {}),
+])
+def test_numba_equals_numpy(make, kw, monkeypatch):
+    rng = np.random.default_rng(1717)
+    args = make(rng, (3, 5))
+    # C_acc not proportional to C_int (else M C_acc is symmetric and cross terms vanish)
+    args["sigma_acc_m"] = args["sigma_int_m"] * rng.uniform(0.4, 0.95, args["y"].shape)
+    args["G"][0, 1, 5:] = np.nan  # candidates leaving 3 satellites or fewer
+    args["G"][0, 2, 3:] = np.nan  # too few satellites
+    vis = np.all(np.isfinite(args["G"]), axis=-1)
+    first = np.argmax(vis, axis=-1)
+    b, e = np.meshgrid(np.arange(1, 3), np.arange(5), indexing="ij")
+    args["y"][b, e, first[1:]] += 60.0
+    for a in (args, {k: v for k, v in args.items() if k != "y"}):
+        fast, plain = numba_and_numpy(monkeypatch, lambda a=a: call(a, **kw))
+        assert_same_result(fast, plain)
+        assert np.any(fast.status == "ok") and np.any(fast.status != "ok")
+    assert np.any(fast.modes.monitored.sum(axis=-1) > 10)
+
+
+@needs_numba
+def test_numba_equals_numpy_on_the_four_system_recording(shared_data, monkeypatch):
+    """10 minutes of the real GPS + GAL + BDS + GLO recording through the kernel as the
+    ``araim`` algorithm calls it (exclusion on), compiled and numpy paths."""
+    from raimcore import araim as kernel_pkg
+    from raimcore.algorithms import araim as algo
+    from raimcore.pipeline import run_scenario
+    from raimcore.scenario import load_scenario
+
+    captured = []
+    real = kernel_pkg.mhss
+
+    def spy(*a, **k):
+        captured.append((a, k))
+        return real(*a, **k)
+
+    monkeypatch.setattr(algo.kernel, "mhss", spy)
+    s = load_scenario("default").replace(
+        source="rinex", obs=str(shared_data / "ESBC00DNK_R_20201770000_02H_30S_MO.rnx"),
+        nav=[str(shared_data / "ESBC00DNK_R_20201770000_01D_MN.rnx")],
+        systems=["GPS", "GAL", "BDS", "GLO"], faults=[], duration_s=600.0, step_s=30.0,
+        algorithm="araim")
+    run_scenario(s)
+    (a, k), = captured
+    fast, plain = numba_and_numpy(monkeypatch, lambda: real(*a, **k))
+    assert_same_result(fast, plain)
+    assert np.all(fast.status == "ok") and fast.modes.valid.sum(axis=1).min() > 300
+    seen = np.all(np.isfinite(a[0][..., 0]), axis=0)  # a 40 m step on a satellite always
+    sat = int(np.argmax(seen))                         # in view, on fault-free residuals
+    y = np.zeros(a[0].shape[:2])
+    y[:, sat] = 40.0
+    kw = dict(k, y=y)
+    fast, plain = numba_and_numpy(monkeypatch, lambda: real(*a, **kw))
+    assert_same_result(fast, plain)
+    assert np.all(fast.alarm) and np.all(fast.excluded_sat == sat)
+
+
+def test_numba_is_not_imported_by_the_package():
+    import subprocess
+    import sys
+
+    code = "import raimcore, raimcore.araim, sys; print('numba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "False"

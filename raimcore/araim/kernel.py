@@ -29,10 +29,25 @@ Protection levels are searched by MAAST's half-interval search from MAAST's brac
 largest PL. ``raimcore.araim._kernel_reference`` keeps this module as first written (the
 reference path of the agreement tests); both give the same decisions and the same numbers
 to rounding.
+
+Compiled kernels. Where numba imports and ``RAIM_STUDIO_NUMBA`` is not ``0`` (read at each
+call, :func:`numba_kernels`), these run compiled (:mod:`raimcore.araim._numba`, the same
+formulas): the subset solutions from normal equations (:func:`_solve_subsets`, Cholesky
+instead of LU for the determinant ratio and the inverse), the bases of :func:`_nested`,
+the one- and two-satellite down-dates of the all-in-view and of those bases
+(:func:`_compiled_downdates`), the thresholds with the separation test, and the PL
+equations with their bracket (:func:`_compiled_bracket`). The half-interval search stays
+in numpy (its cost is one ``ndtr`` per term and step, which a compiled loop does not cut).
+Everything else, and everything without numba, is the numpy code below;
+``tests/test_araim.py`` checks that both paths agree (decisions identical, numbers to
+rounding).
 """
 
 from __future__ import annotations
 
+import functools
+import importlib.util
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,6 +66,32 @@ RATIO_MIN = 1e-10
 #: Bisection steps when ``pl_max_iter = 0`` (the interval halves each step: 200 steps
 #: reach the resolution of a double from any bracket).
 _MAX_STEPS = 200
+
+
+#: Environment variable that keeps numba out when set to ``0`` (as for the particle bank,
+#: :data:`raimcore.algorithms.pf.NUMBA_ENV`); read at each call.
+NUMBA_ENV = "RAIM_STUDIO_NUMBA"
+
+
+@functools.lru_cache(maxsize=1)
+def _numba_module():
+    """:mod:`raimcore.araim._numba`, or None where numba does not import."""
+    try:
+        from . import _numba
+    except ImportError:
+        return None
+    return _numba
+
+
+def numba_kernels():
+    """The compiled kernels (:mod:`raimcore.araim._numba`) if numba is installed and
+    ``RAIM_STUDIO_NUMBA`` is not ``0``, else None (the numpy path runs). Numba is looked up
+    and imported only here, at the first evaluation: ``import raimcore`` stays light."""
+    if os.environ.get(NUMBA_ENV, "1").strip() == "0":
+        return None
+    if importlib.util.find_spec("numba") is None:
+        return None
+    return _numba_module()
 
 
 def _wsum(a, w):
@@ -236,6 +277,15 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
         sep[:, 0] = 0.0
     any_bnom = bool(np.any(bnom > 0.0))
     any_bcont = bool(np.any(bcont > 0.0))
+    nb = numba_kernels()
+    if nb is not None:
+        outs = (sigma, bias, sigma_ss, bias_ss, ratio,
+                sacc if need_acc else np.empty((e, k_all)),
+                sep if sep is not None else np.empty(shape))
+        _compiled_downdates(nb, av, g, cint, cacc, bnom, bcont, cons, removed, size, emptied,
+                            present, need_acc, y, any_bnom, any_bcont, outs)
+        return _finish_stats(av, count_ok, ratio, sigma, bias, sigma_ss, bias_ss, sacc,
+                             sep, need_acc)
     x_acc = None
     # M diag(C_acc) M^T, once per epoch: its 2 x 2 blocks give sigma_ss of two-satellite
     # modes (its diagonal, for one-satellite modes, from one matrix-vector product).
@@ -297,6 +347,12 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
         if sep is not None:
             sep[:, ks] = st[6]
 
+    return _finish_stats(av, count_ok, ratio, sigma, bias, sigma_ss, bias_ss, sacc, sep,
+                         need_acc)
+
+
+def _finish_stats(av, count_ok, ratio, sigma, bias, sigma_ss, bias_ss, sacc, sep, need_acc):
+    """Monitorability (section 5) and infinite statistics of unmonitorable modes."""
     mon = av.ok[:, None] & count_ok[None, :] & (ratio > RATIO_MIN)
     mon[:, 0] = av.ok
     bad = ~mon
@@ -307,6 +363,81 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
     if sep is not None:
         sep[bad] = np.nan
     return SubsetStats(sigma, bias, sigma_ss, bias_ss, sacc, mon, sep)
+
+
+def _compiled_downdates(nb, av, g, cint, cacc, bnom, bcont, cons, removed, size, emptied,
+                        present, need_acc, y, any_bnom, any_bcont, outs):
+    """:func:`subset_stats` with the one- and two-satellite down-dates of the all-in-view
+    and of each constellation's subset solution (:func:`_nested`) in one compiled pass
+    (:func:`raimcore.araim._numba.downdate_modes`, the same formulas); the other modes
+    from their normal equations (:func:`_direct`) as on the numpy path. Writes ``outs``
+    (sigma, bias, sigma_ss, bias_ss, ratio, sacc, sep) in place."""
+    e, n, m = g.shape
+    sigma, bias, sigma_ss, bias_ss, ratio, sacc, sep = outs
+    has_y = y is not None
+    flags = (RATIO_MIN, any_bnom, any_bcont, need_acc, has_y)
+    f64 = np.ascontiguousarray
+
+    def run(bases, jb, idx, r, ks):
+        nb.downdate_modes(*bases, f64(av.p0), f64(cint), f64(cacc), f64(bnom), f64(bcont),
+                          f64(jb, dtype=np.int64), f64(idx, dtype=np.int64), r,
+                          f64(ks, dtype=np.int64), *flags, *outs)
+
+    plain = None
+    for r in (1, 2):
+        ks = np.flatnonzero((size == r) & ~emptied)
+        if ks.size == 0:
+            continue
+        if plain is None:
+            z3 = np.zeros((e, 1, 3))
+            rb = av.resid[:, None] if has_y else np.zeros((e, 1, n))
+            plain = tuple(f64(a) for a in (
+                av.p0[:, None], av.m[:, None], (av.sigma ** 2)[:, None], np.ones((e, 1)),
+                z3, np.zeros((e, 1, n, 3)), z3, rb))
+        idx = np.full((ks.size, 2), -1)
+        idx[:, :r] = np.nonzero(removed[ks])[1].reshape(ks.size, r)
+        run(plain, np.zeros(ks.size), idx, r, ks)
+
+    ks = np.flatnonzero((size >= 1) & ~(((size == 1) | (size == 2)) & ~emptied))
+    if ks.size == 0:
+        return
+    member = cons[None, :] == np.arange(m - 3)[:, None]  # (c, n)
+    gone = ~present[ks]
+    j_of = np.argmax(gone, axis=1)
+    extra = removed[ks] & ~member[j_of]
+    r_extra = extra.sum(axis=1)
+    nest = (gone.sum(axis=1) == 1) & (r_extra >= 1) & (r_extra <= 2)
+    if np.any(nest):
+        bases, jb = np.unique(j_of[nest], return_inverse=True)
+        base_present = np.ones((len(bases), m - 3), bool)
+        base_present[np.arange(len(bases)), bases] = False
+        sb, ratio_b = _solve_subsets(av, g, cint, member[bases], base_present, m)
+        j_n = len(bases)
+        mb_full = np.empty((e, j_n, n, n))
+        sigb2, d2, dy = (np.empty((e, j_n, 3)) for _ in range(3))
+        xb, rb = np.empty((e, j_n, n, 3)), np.empty((e, j_n, n))
+        nb.nested_bases(f64(g), f64(sb), f64(av.p0), f64(cint), f64(cacc),
+                        f64(y) if has_y else np.empty((1, 1)), has_y, mb_full, sigb2, d2,
+                        xb, dy, rb)
+        base = (f64(sb[:, :, :3]), mb_full, sigb2, f64(ratio_b), d2, xb, dy, rb)
+        jb = jb.reshape(-1)
+        for r in (1, 2):
+            sel = nest & (r_extra == r)
+            if not np.any(sel):
+                continue
+            idx = np.full((int(sel.sum()), 2), -1)
+            idx[:, :r] = np.nonzero(extra[sel])[1].reshape(-1, r)
+            run(base, jb[sel[nest]], idx, r, ks[sel])
+    ks = ks[~nest]
+    if ks.size:
+        st = _direct(av, g, cint, cacc, bnom, bcont, removed[ks], present[ks], need_acc, y,
+                     any_bnom, any_bcont)
+        sigma[:, ks], bias[:, ks], sigma_ss[:, ks], bias_ss[:, ks] = st[:4]
+        ratio[:, ks] = st[4]
+        if need_acc:
+            sacc[:, ks] = st[5]
+        if has_y:
+            sep[:, ks] = st[6]
 
 
 def _downdate(av, idx, cint, q_acc, bnom, bcont, any_bnom, any_bcont, x_acc, y):
@@ -386,6 +517,14 @@ def _solve_subsets(av, g, cint, removed, present, rows: int):
     ``rows`` rows of ``S^(k)`` (E, Kd, rows, n) and ``det(N_k)/det(N_0)`` (E, Kd), 0 where
     not above :data:`RATIO_MIN`."""
     e, n, m = g.shape
+    nb = numba_kernels()
+    if nb is not None:
+        absent = np.concatenate([np.ones((len(removed), 3), bool), present], axis=1) == 0
+        s_k, ratio = np.empty((e, len(removed), rows, n)), np.empty((e, len(removed)))
+        f64 = np.ascontiguousarray
+        nb.solve_subsets(f64(g), f64(cint), f64(av.n0), f64(removed), f64(absent),
+                         RATIO_MIN, s_k, ratio)
+        return s_k, ratio
     keep = (~removed).astype(float)  # (Kd, n)
     gw = g / cint[..., None]  # (E, n, m)
     gtw_k = np.swapaxes(gw, -1, -2)[:, None] * keep[None, :, None, :]  # (E, Kd, m, n)
@@ -548,6 +687,35 @@ def _bracket_multipliers(tgt, k_terms, p, a, active):
     return k_low, k_high
 
 
+def _compiled_bracket(nb, thr, bias, sigma, pk, cap, target) -> PlBracket:
+    """The bracket of :func:`evaluate`'s PL equations as :func:`pl_bracket` makes it, the
+    (rows, modes) arrays filled in one compiled pass
+    (:func:`raimcore.araim._numba.pl_equations`). Every row's priors are its epoch's
+    ``pk`` and its caps ``cap`` where active, so the multipliers depend on the row only
+    through its budget and term count (as in :func:`_bracket_multipliers`): ``Q^-1`` runs
+    on the distinct (budget, count) pairs, the same numbers."""
+    e, k = pk.shape
+    k_terms = np.tile(np.maximum((pk > 0.0).sum(axis=1), 1), 3)
+    ok = (target > 0.0) & np.tile(np.any(pk > 0.0, axis=1), 3)
+    tgt = np.where(ok, target, 1.0)
+    pairs = np.stack([tgt, k_terms.astype(float)], axis=1)
+    uniq, u_of = np.unique(pairs, axis=0, return_inverse=True)
+    p_col = np.where(pk.max(axis=0, initial=0.0) > 0.0, np.max(pk, axis=0, initial=0.0),
+                     1.0)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t_u, k_u = uniq[:, :1], uniq[:, 1:]
+        k_low = q_inv(np.minimum(1.0, t_u / (p_col * cap)))
+        k_high = np.maximum(0.0, q_inv(np.minimum(1.0, t_u / (k_u * p_col))))
+    r = 3 * e
+    c, sig, p, a = (np.empty((r, k)) for _ in range(4))
+    low, up = np.empty(r), np.empty(r)
+    f64 = np.ascontiguousarray
+    nb.pl_equations(f64(thr), f64(bias), f64(sigma), f64(pk), f64(cap, dtype=float), ok,
+                    u_of.reshape(-1).astype(np.int64), f64(k_low), f64(k_high), c, sig, p, a,
+                    low, up)
+    return PlBracket(c, sig, p, a, tgt, low, up, ok)
+
+
 def pl_bisect(br: PlBracket, tol: float, max_iter: int = 0, rows=None):
     """MAAST's half-interval search from the bracket ``br`` on the rows ``rows`` (bool
     (R,), default all). Returns (R,): ``L_up`` of the searched rows, ``br.up`` of the
@@ -666,10 +834,19 @@ def evaluate(g, cint, cacc, bnom, bcont, cons, modes, prm: dict, *, rules: str,
     k_v = q_inv(prm["p_fa_vert"] / (2.0 * nf))
     k_fa = np.stack([k_h, k_h, k_v], axis=-1)
     k_fa = np.where((n_fm > 0)[:, None], k_fa, np.nan)
-    with np.errstate(invalid="ignore"):  # inf sigma_ss of unmonitorable modes, masked
-        thr = np.where(mon[..., None],
-                       np.nan_to_num(k_fa)[:, None, :] * st.sigma_ss + st.bias_ss, np.inf)
-    thr[:, 0] = 0.0
+    nb = numba_kernels()
+    if nb is not None:  # thresholds and the separation test in one compiled pass
+        thr = np.empty(st.sigma_ss.shape)
+        worst_mode, worst = np.empty(e, np.int64), np.empty(e)
+        f64 = np.ascontiguousarray
+        nb.thresholds_and_test(f64(st.sigma_ss), f64(st.bias_ss), f64(mon),
+                               f64(np.nan_to_num(k_fa)), f64(st.sep) if y is not None
+                               else np.empty((1, 1, 3)), y is not None, thr, worst_mode, worst)
+    else:
+        with np.errstate(invalid="ignore"):  # inf sigma_ss of unmonitorable modes, masked
+            thr = np.where(mon[..., None],
+                           np.nan_to_num(k_fa)[:, None, :] * st.sigma_ss + st.bias_ss, np.inf)
+        thr[:, 0] = 0.0
     # Section 7: budgets and protection levels.
     pv, ph, nes = prm["phmi_vert"], prm["phmi_hor"], prm["n_es_int"]
     phmi_v = rho * (pv - pv * p_nm / (pv + ph)) / nes
@@ -688,15 +865,18 @@ def evaluate(g, cint, cacc, bnom, bcont, cons, modes, prm: dict, *, rules: str,
         lost = np.zeros(e)
     else:  # sigma = inf terms: their whole allocation p a is spent
         lost = np.sum(np.where(~mon, p_inst[None, :] * cap[None, :], 0.0)[:, 1:], axis=1)
-    offs = thr + st.bias  # (E, K, 3)
-    ax_c = np.moveaxis(offs, 2, 0).reshape(3 * e, -1)
-    ax_s = np.moveaxis(st.sigma, 2, 0).reshape(3 * e, -1)
-    ax_p = np.tile(pk, (3, 1))
-    ax_a = np.broadcast_to(cap, ax_p.shape)
     tgt = np.concatenate([phmi_h - lost, phmi_h - lost, phmi_v - lost])
-    ax_c = np.where(ax_p > 0, ax_c, 0.0)
-    ax_s = np.where(ax_p > 0, ax_s, 1.0)
-    br = pl_bracket(ax_c, ax_s, ax_p, ax_a, tgt)
+    if nb is not None:
+        br = _compiled_bracket(nb, thr, st.bias, st.sigma, pk, cap, tgt)
+    else:
+        offs = thr + st.bias  # (E, K, 3)
+        ax_c = np.moveaxis(offs, 2, 0).reshape(3 * e, -1)
+        ax_s = np.moveaxis(st.sigma, 2, 0).reshape(3 * e, -1)
+        ax_p = np.tile(pk, (3, 1))
+        ax_a = np.broadcast_to(cap, ax_p.shape)
+        ax_c = np.where(ax_p > 0, ax_c, 0.0)
+        ax_s = np.where(ax_p > 0, ax_s, 1.0)
+        br = pl_bracket(ax_c, ax_s, ax_p, ax_a, tgt)
     if defer_pl:
         hpl1, hpl2, vpl, hpl = (np.full(e, np.nan) for _ in range(4))
     else:
@@ -720,7 +900,9 @@ def evaluate(g, cint, cacc, bnom, bcont, cons, modes, prm: dict, *, rules: str,
     sigma_acc_v = av.sigma_acc[:, 2].copy()
     # Section 6: solution-separation test.
     alarm = alarm_mode = ratio = None
-    if y is not None:
+    if y is not None and nb is not None:
+        alarm_mode, ratio = worst_mode, worst
+    elif y is not None:
         sep = st.sep
         with np.errstate(divide="ignore", invalid="ignore"):
             norm = np.abs(sep) / thr
@@ -730,6 +912,7 @@ def evaluate(g, cint, cacc, bnom, bcont, cons, modes, prm: dict, *, rules: str,
         worst = np.max(norm, axis=2)  # (E, K)
         alarm_mode = np.argmax(worst, axis=1)
         ratio = worst[np.arange(e), alarm_mode]
+    if y is not None:
         alarm = ratio > 1.0
         none = ~np.isfinite(ratio) & (ratio < 0)
         alarm_mode = np.where(none, -1, alarm_mode)

@@ -26,7 +26,10 @@ the LPV-200 ADD constants.
 3. ``--recording``: the real GPS + GAL + BDS + GLO recording (``../shared/data/
    ESBC00DNK_R_20201770000_02H_30S_MO.rnx``, about 40 satellites, 30 s) for ``--duration``
    seconds through the ``araim`` algorithm (exclusion on, as by default): the whole run,
-   then the kernel on the same inputs, fast and reference paths, with their ratio.
+   then the kernel on the same inputs, fast and reference paths, with their ratio; then
+   the fast path with the compiled kernels (numba, :mod:`raimcore.araim._numba`) against
+   the same path in numpy (``RAIM_STUDIO_NUMBA=0``), and the kernels' compile time (cold:
+   an empty numba cache; cached: loaded from it), each in a fresh interpreter.
 Not a test: nothing here asserts a time.
 
 Measured on the shared 2-core machine (December 2026, issue 17; other jobs running):
@@ -38,7 +41,10 @@ to about 60 s in-process (kernel about 1.7x the reference path on the same batch
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -57,6 +63,7 @@ from raimcore.araim import (  # noqa: E402
 from raimcore.sky.constellations import builtin  # noqa: E402
 
 _KERNEL = importlib.import_module("raimcore.araim.mhss")
+_KERNEL_MOD = importlib.import_module("raimcore.araim.kernel")
 SYSTEMS = ("GPS", "GAL")
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 MASK_RAD = np.radians(5.0)
@@ -234,6 +241,37 @@ def bench_recording(duration_s: float, repeat: int) -> None:
     print(f"  kernel fast     : {t_fast:6.2f} s ({1e3 * t_fast / n_ep:.1f} ms/epoch)")
     print(f"  kernel reference: {t_ref:6.2f} s ({1e3 * t_ref / n_ep:.1f} ms/epoch)")
     print(f"  ratio fast/reference: {t_ref / t_fast:.2f}x   {agree(fast, ref)}")
+    if _KERNEL_MOD.numba_kernels() is None:
+        print("  numba: not installed or RAIM_STUDIO_NUMBA=0, compiled kernels not timed")
+        return
+    os.environ[_KERNEL_MOD.NUMBA_ENV] = "0"
+    try:
+        t_np, plain = best_time(lambda: real(*a, **k), repeat)
+    finally:
+        del os.environ[_KERNEL_MOD.NUMBA_ENV]
+    t_nb, comp = best_time(lambda: real(*a, **k), repeat)
+    print(f"  kernel numba    : {t_nb:6.2f} s ({1e3 * t_nb / n_ep:.1f} ms/epoch)")
+    print(f"  kernel numpy    : {t_np:6.2f} s ({1e3 * t_np / n_ep:.1f} ms/epoch), "
+          f"RAIM_STUDIO_NUMBA=0")
+    print(f"  ratio numba/numpy: {t_np / t_nb:.2f}x   {agree(comp, plain)}")
+
+
+def bench_compile() -> None:
+    """Compile time of :mod:`raimcore.araim._numba`: cold (an empty numba cache directory)
+    and cached (the same directory again), each in a fresh interpreter, with the import."""
+    if _KERNEL_MOD.numba_kernels() is None:
+        print("compile: numba not installed or RAIM_STUDIO_NUMBA=0, skipped")
+        return
+    code = ("import time; t = time.perf_counter(); from raimcore.araim import _numba; "
+            "_numba.warm_up(); print(time.perf_counter() - t)")
+    root = str(Path(__file__).resolve().parents[2])
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache, PYTHONPATH=root)
+        times = [float(subprocess.run([sys.executable, "-c", code], env=env, check=True,
+                                      capture_output=True, text=True).stdout)
+                 for _ in range(2)]
+    print(f"compile araim numba kernels (import numba + compile or load): cold {times[0]:.2f} s,"
+          f" cached {times[1]:.2f} s")
 
 
 def main() -> None:
@@ -253,6 +291,7 @@ def main() -> None:
     if args.world:
         bench_world(kw, args.ism, args.reference)
     if args.recording:
+        bench_compile()
         bench_recording(args.duration, args.repeat)
 
 
