@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from raimcore.studies.availability import AvailabilityResult
-
-from . import stanford
+if TYPE_CHECKING:  # the study imports scipy: not for `raim --help`
+    from raimcore.studies.availability import AvailabilityResult
 
 #: Size of the standalone figure, px.
 WIDTH_PX = 1200
@@ -154,11 +154,15 @@ def map_figure(res: AvailabilityResult, *, width_px: int = WIDTH_PX,
 
 def write_html(fig: dict, path) -> Path:
     """Self-contained HTML (plotly.js inline, no CDN)."""
+    from . import stanford
+
     return stanford.write_html(fig, path)
 
 
 def write_png(fig: dict, path) -> Path:
     """PNG rendered by a headless Chromium (:func:`app.stanford.write_png`)."""
+    from . import stanford
+
     return stanford.write_png(fig, path)
 
 
@@ -213,7 +217,7 @@ OPTION_NAMES = {"lat_step_deg": "--step", "lon_step_deg": "--step", "t_step_s": 
 
 def add_subcommand(sub) -> argparse.ArgumentParser:
     """Add the ``availability`` subcommand to the ``raim`` subparsers ``sub``."""
-    from raimcore.studies.availability import ALGORITHMS, PL_P_FA, PL_P_MD
+    from raimcore.studies._availability_defaults import ALGORITHMS, PL_P_FA, PL_P_MD
 
     p = sub.add_parser("availability", help="LPV-200 availability map of a user grid",
                        description="LPV-200 availability of ARAIM (or MSS, classic RAIM) "
@@ -368,6 +372,8 @@ def run(args) -> int:
         except ImportError as exc:
             raise ValueError(f"the map needs plotly: pip install 'raim-studio[app]' "
                              f"({exc}); --csv alone works without it") from None
+    from . import stanford
+
     if args.png is not None and stanford.find_browser() is None:
         raise ValueError(f"cannot write {str(args.png)!r}: {stanford.png_requirement()}")
     kw = _study_kwargs(args)

@@ -463,7 +463,9 @@ def test_map_figure_has_cells_coastline_and_target_contour(small):
     assert np.array(heat["customdata"], dtype=float)[..., 0].ravel() == \
         pytest.approx(100 * small.availability)
     assert f"{small.coverage_pct:.1f} %" in fig["layout"]["title"]["text"]
-    figure.stanford.to_plotly(fig)  # a valid plotly figure
+    from app import stanford
+
+    stanford.to_plotly(fig)  # a valid plotly figure
 
 
 # -- the subcommand of app/availability.py (algorithm, ledger, resume) ----------------------

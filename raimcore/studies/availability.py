@@ -75,6 +75,7 @@ from .._validate import check_choice, check_int, check_positive, check_probabili
 from ..geometry import enu_rotation, geodetic_to_ecef
 from ..measure.error_models import USER_MODELS, Ism, araim_sigmas, parse_ism
 from ..sky.constellations import SYSTEM_PREFIX, Constellation, builtin, combine
+from ._availability_defaults import ALGORITHMS, PL_P_FA, PL_P_MD
 from .montecarlo import run_on_dask, run_on_pool
 
 __all__ = ["availability", "AvailabilityResult", "ISM_PRESETS", "DEFAULT_ISM", "ALGORITHMS",
@@ -83,14 +84,6 @@ __all__ = ["availability", "AvailabilityResult", "ISM_PRESETS", "DEFAULT_ISM", "
 
 #: MAAST's ``usrworld.dat``: the whole world (lat, lon vertices in degrees).
 WORLD = ((-90.0, -180.0), (-90.0, 180.0), (90.0, 180.0), (90.0, -180.0))
-#: Algorithms that give protection levels here (module docstring).
-ALGORITHMS = ("araim", "mss", "classic")
-#: Default false-alarm probability of the ``mss`` / ``classic`` maps: the continuity budget
-#: of the ARAIM map, P_FA_VERT + P_FA_HOR = 3.9e-6 + 9e-8 (ARAIM.md section 10).
-PL_P_FA = 3.99e-6
-#: Default missed-detection probability of the ``mss`` / ``classic`` maps: the classic RAIM
-#: value P_md = 1e-3 (Brown 1992; RTCA DO-229 RAIM).
-PL_P_MD = 1e-3
 #: ``mss`` keeps (user-epoch, satellite, satellite) arrays: per call it takes
 #: ``batch_user_epochs // SS_BATCH_DIVISOR`` user-epochs (about 80 kB each).
 SS_BATCH_DIVISOR = 10
