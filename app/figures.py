@@ -566,9 +566,11 @@ def particle_figure(view: RunView) -> PanelFigure:
     n_e, k_n = enu.shape[:2]
     ok = np.isfinite(enu).all(-1).all(-1)
     if ok.any():
-        radius = np.nanpercentile(np.abs(enu[ok][..., :2]), 90, axis=1).max(-1)
+        # Epochs ``ok`` have every particle finite: np.percentile (vectorised; nanpercentile
+        # along an axis loops over the rows in Python, 40 ms for seed002's 419 epochs).
+        radius = np.percentile(np.abs(enu[ok][..., :2]), 90, axis=1).max(-1)
         half = float(max(np.percentile(radius, 98) * 1.6, 2.0))
-        u_lim = float(max(np.nanpercentile(np.abs(enu[ok][..., 2]), 98), 1.0))
+        u_lim = float(max(np.percentile(np.abs(enu[ok][..., 2]), 98), 1.0))
     else:
         half, u_lim = 10.0, 10.0
 
