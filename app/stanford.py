@@ -40,7 +40,6 @@ REGION_FILL = {
     "unavailable": "rgba(230,200,0,0.18)",
     "unavailable_mi": "rgba(180,0,180,0.18)",
 }
-REGION_NAME = {"nominal": "nominal", "mi": "MI", "hmi": "HMI", "unavailable": "unavailable"}
 #: Most bins per axis drawn: finer histograms are shown summed over blocks of bins.
 HTML_MAX_BINS = 400
 PANEL_MAX_BINS = 60
@@ -51,10 +50,6 @@ PANEL_HEIGHT_PX = 480  # like every panel: it fits a 700 px window
 #: Browsers ``write_png`` looks for on PATH, in this order.
 BROWSERS = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable", "chrome")
 PNG_TIMEOUT_S = 120.0
-
-
-def _pct(x: float) -> str:
-    return f"{100 * x:.3g}%" if x > 0 else "0%"
 
 
 def block_for(result: StanfordResult, max_bins: int) -> int:
@@ -79,15 +74,7 @@ def region_lines(result: StanfordResult, al_name: str, al_on: bool, *,
                  width: int = 90) -> list[str]:
     """Every region's count and share, the alert limit, in lines of at most about
     ``width`` characters (the heading of a diagram)."""
-    items = []
-    alarmed = {"mi": result.mi_alarmed, "hmi": result.hmi_alarmed}
-    for region, k in result.counts.items():
-        share = result.shares[region]
-        notes = [] if math.isnan(share) else [_pct(share)]
-        if alarmed.get(region):
-            notes.append(f"{alarmed[region]} alarmed")
-        items.append(f"{REGION_NAME[region]} {k}" + (f" ({'; '.join(notes)})" if notes
-                                                     else ""))
+    items = result.region_items("alarmed")
     extra = []
     if result.unavailable_mi:
         extra.append(f"unavailable with PE ≥ PL {result.unavailable_mi}")

@@ -66,7 +66,7 @@ from .._validate import check_positive
 
 __all__ = ["REGIONS", "StanfordResult", "StanfordDiagram", "stanford_esa",
            "stanford_from_table", "stanford_from_result", "stanford_from_csv",
-           "pl_columns", "DEFAULT_BIN_M"]
+           "pl_columns", "DEFAULT_BIN_M", "REGION_NAMES", "pct"]
 
 #: The partition of the epochs, in the order the figures list it.
 REGIONS = ("nominal", "mi", "hmi", "unavailable")
@@ -166,26 +166,34 @@ class StanfordResult:
                   self.hist_count)
         return out
 
-    def summary_line(self) -> str:
-        """One line: every region's count and share."""
-        parts = []
+    def region_items(self, alarmed_word: str = "with an alarm") -> list[str]:
+        """Every region's name, count and share (and how many of MI/HMI had an alarm,
+        ``"N <alarmed_word>"``), one string each."""
+        items = []
         alarmed = {"mi": self.mi_alarmed, "hmi": self.hmi_alarmed}
         for r, k in self.counts.items():
             share = self.shares[r]
-            notes = [] if math.isnan(share) else [_pct(share)]
+            notes = [] if math.isnan(share) else [pct(share)]
             if alarmed.get(r):
-                notes.append(f"{alarmed[r]} with an alarm")
-            parts.append(f"{_NAMES[r]} {k}" + (f" ({'; '.join(notes)})" if notes else ""))
+                notes.append(f"{alarmed[r]} {alarmed_word}")
+            items.append(f"{REGION_NAMES[r]} {k}" + (f" ({'; '.join(notes)})" if notes else ""))
+        return items
+
+    def summary_line(self) -> str:
+        """One line: every region's count and share."""
+        parts = self.region_items()
         extra = (f"; unavailable with PE >= PL {self.unavailable_mi}"
                  if self.unavailable_mi else "")
         return (f"{self.label} (AL {self.al_m:g} m, {self.epochs} epochs): "
                 + ", ".join(parts) + extra)
 
 
-_NAMES = {"nominal": "nominal", "mi": "MI", "hmi": "HMI", "unavailable": "unavailable"}
+#: The regions' names as the diagram and the summaries print them.
+REGION_NAMES = {"nominal": "nominal", "mi": "MI", "hmi": "HMI", "unavailable": "unavailable"}
 
 
-def _pct(x: float) -> str:
+def pct(x: float) -> str:
+    """A share as a percentage with 3 significant digits ("0%" for none)."""
     return f"{100 * x:.3g}%" if x > 0 else "0%"
 
 
