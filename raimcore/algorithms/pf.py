@@ -2116,16 +2116,21 @@ def _common_mode(bank: ParticleBank, dt_step: float, sv, pr, used, sys_idx, n_sy
                  threshold_m: float):
     """:func:`clock_jump` (R, q) of the main filter's predicted residuals at an epoch
     ``dt_step`` after the particles' (``threshold_m`` 0: every system's median)."""
+    resid = _predicted_residuals(bank, dt_step, sv, pr, sys_idx)
+    return clock_jump(resid, used[None], sys_idx, n_sys, threshold_m)
+
+
+def _predicted_residuals(bank: ParticleBank, dt_step: float, sv, pr, sys_idx) -> np.ndarray:
+    """(R, n) residuals of the main filter's weighted mean predicted ``dt_step`` ahead
+    (untracked satellites: ``-range - clock``, masked by the callers)."""
     model = bank.model
-    w = np.exp(bank.log_w[:, 0])
-    m = weighted_mean(bank.particles[:, 0], w)  # (R, D), state at k - 1
+    m = weighted_mean(bank.particles[:, 0], np.exp(bank.log_w[:, 0]))  # (R, D), at k - 1
     pos = m[:, :3] + (m[:, 3:6] * dt_step if model.kind == "cv" else 0.0)
     clk = m[:, model.clocks]
     if model.has_drift:
         clk = clk + m[:, model.drift, None] * dt_step
     rng_m = np.linalg.norm(sv[None] - pos[:, None], axis=-1)
-    resid = np.where(np.isnan(pr), 0.0, pr) - rng_m - clk[:, np.asarray(sys_idx, dtype=int)]
-    return clock_jump(resid, used[None], sys_idx, n_sys, threshold_m)
+    return np.where(np.isnan(pr), 0.0, pr) - rng_m - clk[:, np.asarray(sys_idx, dtype=int)]
 
 
 def _may_jump(bank: ParticleBank, dt_step: float, sv, pr, used, sys_idx) -> bool:
@@ -2133,7 +2138,7 @@ def _may_jump(bank: ParticleBank, dt_step: float, sv, pr, used, sys_idx) -> bool
     predicted residual of the main filter above it: :func:`clock_jump` then finds no jump),
     found without its array passes: by the compiled screen
     (:func:`._pf_numba.common_mode_screen`, with a margin over the rounding) for a numba
-    bank, else by the same residuals as :func:`_common_mode`'s, in fewer operations. True:
+    bank, else by :func:`_common_mode`'s residuals (:func:`_predicted_residuals`). True:
     compute the jumps."""
     model = bank.model
     if bank.kernel == "numba":
@@ -2142,13 +2147,7 @@ def _may_jump(bank: ParticleBank, dt_step: float, sv, pr, used, sys_idx) -> bool
             req(bank.particles), req(bank.log_w), req(sv), req(pr), req(used, np.bool_),
             _checked_sys_idx(sys_idx, model.n_clk), model.clk0, model.kind == "cv",
             model.has_drift, model.drift, float(dt_step), CLOCK_JUMP_M))
-    m = weighted_mean(bank.particles[:, 0], np.exp(bank.log_w[:, 0]))  # as _common_mode
-    pos = m[:, :3] + (m[:, 3:6] * dt_step if model.kind == "cv" else 0.0)
-    clk = m[:, model.clocks]
-    if model.has_drift:
-        clk = clk + m[:, model.drift, None] * dt_step
-    rng_m = np.linalg.norm(sv[None] - pos[:, None], axis=-1)
-    resid = np.where(np.isnan(pr), 0.0, pr) - rng_m - clk[:, np.asarray(sys_idx, dtype=int)]
+    resid = _predicted_residuals(bank, dt_step, sv, pr, sys_idx)
     return bool((used & (np.abs(resid) > CLOCK_JUMP_M)).any())  # clock_jump's first test
 
 
