@@ -277,10 +277,11 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
         sep[:, 0] = 0.0
     any_bnom = bool(np.any(bnom > 0.0))
     any_bcont = bool(np.any(bcont > 0.0))
+    outs = (sigma, bias, sigma_ss, bias_ss, ratio, sacc, sep)
     nb = numba_kernels()
     if nb is not None:
         outs = (sigma, bias, sigma_ss, bias_ss, ratio,
-                sacc if need_acc else np.empty((e, k_all)),
+                sacc if need_acc else np.empty((e, k_all)),  # the kernel writes every one
                 sep if sep is not None else np.empty(shape))
         _compiled_downdates(nb, av, g, cint, cacc, bnom, bcont, cons, removed, size, emptied,
                             present, need_acc, y, any_bnom, any_bcont, outs)
@@ -303,22 +304,12 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
         idx = np.nonzero(removed[ks])[1].reshape(ks.size, r)  # (Kr, r), ascending
         st = _downdate(av, idx, cint, q_acc_full if r == 2 else q_acc_diag, bnom, bcont,
                        any_bnom, any_bcont, x_acc, y)
-        sigma[:, ks], bias[:, ks], sigma_ss[:, ks], bias_ss[:, ks] = st[:4]
-        ratio[:, ks] = st[4]
-        if need_acc:
-            sacc[:, ks] = st[5]
-        if sep is not None:
-            sep[:, ks] = st[6]
+        _store(outs, ks, st)
 
-    ks = np.flatnonzero((size >= 1) & ~(((size == 1) | (size == 2)) & ~emptied))
     # A whole constellation plus one or two satellites: down-dates of the constellation's
     # subset solution (:func:`_nested`); the rest from their normal equations.
-    member = cons[None, :] == np.arange(m - 3)[:, None]  # (c, n)
-    gone = ~present[ks]  # (Kd, c) constellations emptied
-    j_of = np.argmax(gone, axis=1)
-    extra = removed[ks] & ~member[j_of]
-    r_extra = extra.sum(axis=1)
-    nest = (gone.sum(axis=1) == 1) & (r_extra >= 1) & (r_extra <= 2)
+    ks, member, j_of, extra, r_extra, nest = _nest_plan(cons, m - 3, removed, size,
+                                                        emptied, present)
     for r in (1, 2):
         kn = ks[nest & (r_extra == r)]
         if kn.size == 0:
@@ -330,25 +321,42 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
         idx = np.nonzero(extra[nest & (r_extra == r)])[1].reshape(kn.size, r)
         st = _nested(av, g, cint, cacc, bnom, bcont, member[bases], base_present,
                      jb.reshape(-1), idx, need_acc, y, any_bnom, any_bcont)
-        sigma[:, kn], bias[:, kn], sigma_ss[:, kn], bias_ss[:, kn] = st[:4]
-        ratio[:, kn] = st[4]
-        if need_acc:
-            sacc[:, kn] = st[5]
-        if sep is not None:
-            sep[:, kn] = st[6]
+        _store(outs, kn, st)
     ks = ks[~nest]
     if ks.size:
         st = _direct(av, g, cint, cacc, bnom, bcont, removed[ks], present[ks], need_acc, y,
                      any_bnom, any_bcont)
-        sigma[:, ks], bias[:, ks], sigma_ss[:, ks], bias_ss[:, ks] = st[:4]
-        ratio[:, ks] = st[4]
-        if need_acc:
-            sacc[:, ks] = st[5]
-        if sep is not None:
-            sep[:, ks] = st[6]
+        _store(outs, ks, st)
 
     return _finish_stats(av, count_ok, ratio, sigma, bias, sigma_ss, bias_ss, sacc, sep,
                          need_acc)
+
+
+def _nest_plan(cons, c: int, removed, size, emptied, present):
+    """The modes that are not one- or two-satellite down-dates of the all-in-view
+    (``ks``), and which of them remove one whole constellation plus one or two satellites
+    (``nest``): those are down-dates of that constellation's subset solution.
+
+    Returns ``ks`` (Kd,), ``member`` (c, n) satellites of each constellation, ``j_of``
+    (Kd,) the emptied constellation, ``extra`` (Kd, n) the satellites removed besides it,
+    ``r_extra`` (Kd,) their count, ``nest`` (Kd,) bool."""
+    ks = np.flatnonzero((size >= 1) & ~(((size == 1) | (size == 2)) & ~emptied))
+    member = cons[None, :] == np.arange(c)[:, None]
+    gone = ~present[ks]  # (Kd, c) constellations emptied
+    j_of = np.argmax(gone, axis=1)
+    extra = removed[ks] & ~member[j_of]
+    r_extra = extra.sum(axis=1)
+    nest = (gone.sum(axis=1) == 1) & (r_extra >= 1) & (r_extra <= 2)
+    return ks, member, j_of, extra, r_extra, nest
+
+
+def _store(outs, ks, st) -> None:
+    """Write the statistics ``st`` of modes ``ks`` (sigma, bias, sigma_ss, bias_ss, ratio,
+    sacc, sep; None where not computed) into the arrays ``outs`` of the same order (None
+    where not kept)."""
+    for out, value in zip(outs, st, strict=True):
+        if out is not None and value is not None:
+            out[:, ks] = value
 
 
 def _finish_stats(av, count_ok, ratio, sigma, bias, sigma_ss, bias_ss, sacc, sep, need_acc):
@@ -398,15 +406,10 @@ def _compiled_downdates(nb, av, g, cint, cacc, bnom, bcont, cons, removed, size,
         idx[:, :r] = np.nonzero(removed[ks])[1].reshape(ks.size, r)
         run(plain, np.zeros(ks.size), idx, r, ks)
 
-    ks = np.flatnonzero((size >= 1) & ~(((size == 1) | (size == 2)) & ~emptied))
+    ks, member, j_of, extra, r_extra, nest = _nest_plan(cons, m - 3, removed, size,
+                                                        emptied, present)
     if ks.size == 0:
         return
-    member = cons[None, :] == np.arange(m - 3)[:, None]  # (c, n)
-    gone = ~present[ks]
-    j_of = np.argmax(gone, axis=1)
-    extra = removed[ks] & ~member[j_of]
-    r_extra = extra.sum(axis=1)
-    nest = (gone.sum(axis=1) == 1) & (r_extra >= 1) & (r_extra <= 2)
     if np.any(nest):
         bases, jb = np.unique(j_of[nest], return_inverse=True)
         base_present = np.ones((len(bases), m - 3), bool)
@@ -432,12 +435,7 @@ def _compiled_downdates(nb, av, g, cint, cacc, bnom, bcont, cons, removed, size,
     if ks.size:
         st = _direct(av, g, cint, cacc, bnom, bcont, removed[ks], present[ks], need_acc, y,
                      any_bnom, any_bcont)
-        sigma[:, ks], bias[:, ks], sigma_ss[:, ks], bias_ss[:, ks] = st[:4]
-        ratio[:, ks] = st[4]
-        if need_acc:
-            sacc[:, ks] = st[5]
-        if has_y:
-            sep[:, ks] = st[6]
+        _store(outs, ks, st)
 
 
 def _downdate(av, idx, cint, q_acc, bnom, bcont, any_bnom, any_bcont, x_acc, y):
