@@ -11,6 +11,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from test_fde import sky  # the random sky of the parity tests
 
 import raimcore
 from raimcore.algorithms import get as get_algorithm
@@ -22,21 +23,6 @@ from raimcore.snapshot import FDE_ALGORITHM_OUTPUTS
 ONE_UM = 1e-6  # positions agree with the engine's to a micrometre
 ALGORITHMS = ("mss", "gf", "rs", "qv", "araim")
 ENGINE_NAME = {"sigma_acc_v_m": "sigma_acc_m"}  # araim's engine column of that output
-
-
-def sky(rng, t_n, s_n, *, n_sys=1, rx=(3.9e6, 3.0e5, 5.0e6)):
-    """Random satellites above a receiver's horizon, exact pseudoranges plus clocks."""
-    rx = np.asarray(rx, dtype=float)
-    up = rx / np.linalg.norm(rx)
-    u = rng.normal(size=(t_n, s_n, 3))
-    u /= np.linalg.norm(u, axis=-1, keepdims=True)
-    u -= 2.0 * np.minimum(u @ up, 0.0)[..., None] * up  # reflected above the horizon
-    u += 0.2 * up  # and a little higher
-    u /= np.linalg.norm(u, axis=-1, keepdims=True)
-    sv = rx + 2.2e7 * u
-    sys_idx = np.arange(s_n) % n_sys
-    pr = np.linalg.norm(sv - rx, axis=-1) + np.array([1.5e4, -6.0e4, 3.0e3])[sys_idx]
-    return sv, pr, sys_idx, rx
 
 
 def engine_call(data, algorithm):
