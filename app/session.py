@@ -486,10 +486,8 @@ class Session:
                 ctl.handle.on_update(lambda _e, c=ctl, n=k.name: self._on_key(
                     c, lambda v: self.scenario.replace(**{n: v})))
                 self.option_controls[k.name] = ctl
-        self._teach_text = teaching.teaching_markdown(spec.label, spec.summary,
-                                                      spec.equations, spec.reference)
-        if self.plot_handles:  # else after the first plots (_recompute): typeset math is
-            self.teach_md.content = self._teach_text  # slow for the page to lay out
+        self.teach_md.content = teaching.teaching_markdown(spec.label, spec.summary,
+                                                           spec.equations, spec.reference)
 
     @property
     def _option_handles(self) -> dict[str, object]:
@@ -891,8 +889,6 @@ class Session:
                 self.scene = self._make_scene()
             self.scene.i_epoch = self.i_epoch
             self.scene.set_run(scene_run(result, view))
-        if self.teach_md.content != self._teach_text:
-            self.teach_md.content = self._teach_text
         t3 = time.perf_counter()
         tm = self.timing
         tm.run_s, tm.figures_s, tm.push_s, tm.total_s = t1 - t0, t2 - t1, t3 - t2, t3 - t0
