@@ -459,51 +459,22 @@ def _araim(sv, pr, w, sigma, sys_idx, n_sys, opts, engine_opts):
 
 def _araim_kernel(sv, pr, w, sigma, sys_idx, n_sys, sig_acc, b_nom, b_cont, p_sat, p_const,
                   engine_opts):
-    """:func:`_araim` on the tracked satellites."""
-    from .algorithms.araim import _single_sat
+    """:func:`_araim` on the tracked satellites: the registered algorithm's decisions
+    (:func:`raimcore.algorithms.araim.solve`), with its sigmas and ISM as arrays."""
+    from .algorithms.araim import solve
     from .algorithms.base import AlgorithmOutput
-    from .araim import mhss
-    from .geometry import enu_to_ecef
-    from .lsq import wls
 
-    t_n, s_n = pr.shape
     used = w > 0
-    lin = wls(sv, pr, w, sys_idx, n_sys)  # weights 1 / sigma_int^2: the kernel's S^(0)
-    ok = lin.available
-    pos_lin = np.where(ok[:, None], lin.pos_ecef_m, 0.0)
-    g = np.where(used[..., None] & ok[:, None, None], lin.h_enu, np.nan)
-    y = np.where(used & ok[:, None], np.nan_to_num(lin.resid_m), 0.0)
-    fde_on = engine_opts["araim_fde"]
-    res = mhss(g, np.where(used, sigma, np.nan), np.where(used, sig_acc, np.nan), b_nom,
-               b_cont, p_sat, p_const, rules=engine_opts["araim_rules"], y=y, fde=fde_on,
-               **engine_opts["araim_constants"].as_dict())
-    dof = lin.n_used - lin.n_states
-    # No redundancy (dof 0) is "unavailable" here as for every algorithm of fde (the
-    # registered araim calls it "detect-only", its statistic NaN or rounding noise).
-    avail = ok & (res.status == "ok") & (dof >= 1)
-    status = np.where(~avail, STATUS_UNAVAILABLE,
-                      np.where(dof >= 2, STATUS_OK, STATUS_NO_ISOLATION))
-    alarm = avail & res.alarm
-    rows = np.arange(t_n)
-    excluded = np.zeros((t_n, s_n), dtype=bool)
-    dx_after = np.zeros((t_n, 3))
-    if fde_on:  # a satellite, or every tracked satellite of a constellation
-        es, ec = res.excluded_sat, res.excluded_const
-        has_s, has_c = alarm & (es >= 0), alarm & (ec >= 0)
-        excluded[rows[has_s], es[has_s]] = True
-        excluded |= has_c[:, None] & used & (sys_idx[None, :] == ec[:, None])
-        dx_after = np.where((has_s | has_c)[:, None], np.nan_to_num(res.dx_excluded_enu_m),
-                            0.0)
-    iso = np.where(excluded.sum(-1) == 1, np.argmax(excluded, axis=-1), -1)
-    isolated = np.where(iso >= 0, iso, np.where(alarm, _single_sat(res.modes,
-                                                                   res.alarm_mode), -1))
-    nan_rows = ~avail[:, None]
+    sol = solve(sv, pr, used, np.where(used, sigma, np.nan), np.where(used, sig_acc, np.nan),
+                b_nom, b_cont, p_sat, p_const, sys_idx, n_sys,
+                rules=engine_opts["araim_rules"], fde=engine_opts["araim_fde"],
+                params=engine_opts["araim_constants"].as_dict())
+    res, avail = sol.res, sol.avail
     return AlgorithmOutput(
-        status=status, statistic=np.where(avail, res.test_ratio, np.nan),
-        threshold=np.where(avail, 1.0, np.nan), alarm=alarm,
-        pos_before_ecef_m=np.where(nan_rows, np.nan, lin.pos_ecef_m),
-        pos_after_ecef_m=np.where(nan_rows, np.nan, enu_to_ecef(dx_after, pos_lin)),
-        excluded=excluded & avail[:, None], isolated=np.where(avail, isolated, -1),
+        status=sol.status, statistic=np.where(avail, res.test_ratio, np.nan),
+        threshold=np.where(avail, 1.0, np.nan), alarm=sol.alarm,
+        pos_before_ecef_m=sol.pos_before, pos_after_ecef_m=sol.pos_after,
+        excluded=sol.excluded, isolated=sol.isolated,
         columns={"hpl_m": res.hpl_m, "vpl_m": res.vpl_m, "emt_m": res.emt_m,
                  "sigma_acc_v_m": res.sigma_acc_v_m})
 

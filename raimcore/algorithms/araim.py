@@ -168,6 +168,67 @@ OPTIONS = (
 )
 
 
+@dataclass(frozen=True)
+class Solution:
+    """ARAIM's decisions at every epoch (:func:`solve`); arrays (T,) unless said."""
+
+    res: kernel.MhssResult  # the kernel's result
+    avail: np.ndarray  # a position with redundancy and an ARAIM evaluation
+    status: np.ndarray  # ok / detect-only / unavailable
+    alarm: np.ndarray
+    has_sat: np.ndarray  # alarm with a satellite excluded
+    has_const: np.ndarray  # alarm with a constellation excluded
+    excluded: np.ndarray  # (T, n) bool, False where not avail
+    isolated: np.ndarray  # the satellite excluded or explaining the alarm, or -1
+    pos_before: np.ndarray  # (T, 3) all-in-view ECEF position, NaN where not avail
+    pos_after: np.ndarray  # (T, 3) after exclusion, NaN where not avail
+
+
+def solve(sv, pr, used, sig_int, sig_acc, b_nom, b_cont, p_sat, p_const, sys_idx,
+          n_sys: int, *, rules: str, fde: bool, params: dict) -> Solution:
+    """The weighted all-in-view fix (weights 1 / sigma_int^2: the kernel's S^(0)), MHSS
+    (:func:`raimcore.araim.mhss`) on its geometry and residuals, and the decisions: the
+    one implementation behind the registered algorithm and ``raimcore.fde``.
+
+    ``sv`` (T, n, 3), ``pr``, ``used``, ``sig_int``, ``sig_acc``, ``b_nom``, ``b_cont``,
+    ``p_sat`` (T, n), ``p_const`` (q,), ``sys_idx`` (n,); ``params`` the kernel's keywords.
+    An epoch without redundancy (dof 0) is unavailable: nothing to test.
+    """
+    t_n, s_n = pr.shape
+    w = np.where(used, 1.0 / sig_int**2, 0.0)
+    lin = wls(sv, pr, w, sys_idx, n_sys)
+    ok = lin.available
+    pos_lin = np.where(ok[:, None], lin.pos_ecef_m, 0.0)
+    g = np.where(used[..., None] & ok[:, None, None], lin.h_enu, np.nan)
+    y = np.where(used & ok[:, None], np.nan_to_num(lin.resid_m), 0.0)
+    res = kernel.mhss(g, sig_int, sig_acc, b_nom, b_cont, p_sat, p_const, rules=rules, y=y,
+                      fde=fde, **params)
+    dof = lin.n_used - lin.n_states
+    avail = ok & (res.status == "ok") & (dof >= 1)
+    status = np.where(~avail, STATUS_UNAVAILABLE,
+                      np.where(dof >= 2, STATUS_OK, STATUS_NO_ISOLATION)).astype(object)
+    alarm = avail & res.alarm
+    rows = np.arange(t_n)
+    excluded = np.zeros((t_n, s_n), dtype=bool)
+    has_s = has_c = np.zeros(t_n, dtype=bool)
+    dx_after = np.zeros((t_n, 3))
+    if fde:  # a satellite, or every used satellite of a constellation
+        es, ec = res.excluded_sat, res.excluded_const
+        has_s, has_c = alarm & (es >= 0), alarm & (ec >= 0)
+        excluded[rows[has_s], es[has_s]] = True
+        excluded |= has_c[:, None] & used & (np.asarray(sys_idx)[None, :] == ec[:, None])
+        dx_after = np.where((has_s | has_c)[:, None], np.nan_to_num(res.dx_excluded_enu_m),
+                            0.0)
+    iso = np.where(excluded.sum(-1) == 1, np.argmax(excluded, axis=-1), -1)
+    isolated = np.where(iso >= 0, iso,
+                        np.where(alarm, _single_sat(res.modes, res.alarm_mode), -1))
+    return Solution(
+        res=res, avail=avail, status=status, alarm=alarm, has_sat=has_s, has_const=has_c,
+        excluded=excluded & avail[:, None], isolated=np.where(avail, isolated, -1),
+        pos_before=np.where(avail[:, None], lin.pos_ecef_m, np.nan),
+        pos_after=np.where(avail[:, None], enu_to_ecef(dx_after, pos_lin), np.nan))
+
+
 def run(data: Measurements, options: dict) -> AlgorithmOutput:
     """Run ARAIM MHSS on every epoch (module doc).
 
@@ -187,62 +248,34 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
     if options["t_exp_s"] > 0 and rules != "add-v4.2":
         raise SchemaError(f"t_exp_s applies to araim_rules \"add-v4.2\" only (blanch-2012 has "
                           f"no exposure), got t_exp_s = {options['t_exp_s']:g}")
-    n_ep, n_sat = data.pr_m.shape
+    n_ep = data.pr_m.shape[0]
     n_sys = len(data.systems)
     ism = MAAST_ISM if data.ism is None else data.ism
     sig_int, sig_acc = araim_sigmas(data.el_rad, data.systems, data.sys_idx, ism,
                                     data.user_model)
     used = data.used & np.isfinite(data.pr_m)
-    w = np.where(used, 1.0 / sig_int**2, 0.0)
-    lin = wls(data.pos_sv_ecef_m, data.pr_m, w, data.sys_idx, n_sys)
-    ok = lin.available
-    pos_lin = np.where(ok[:, None], lin.pos_ecef_m, 0.0)
-    g = np.where(used[..., None] & ok[:, None, None], lin.h_enu, np.nan)
-    y = np.where(used & ok[:, None], np.nan_to_num(lin.resid_m), 0.0)
     per_sat = ism.per_sat(data.systems, data.sys_idx)
     per_sys = ism.per_system(data.systems)
     params = dict(consts)
     if rules == "add-v4.2":
         params["tau_sat"] = options["t_exp_s"] / per_sat["mfd_sat_s"]
         params["tau_const"] = options["t_exp_s"] / per_sys["mfd_const_s"]
-    res = kernel.mhss(g, sig_int, sig_acc, per_sat["b_nom_m"], per_sat["b_cont_m"],
-                      per_sat["p_sat"], per_sys["p_const"], rules=rules, y=y, fde=fde,
-                      **params)
-
-    dof = lin.n_used - lin.n_states
-    # No redundancy (dof 0): nothing to test and every fault mode unmonitorable, so
-    # unavailable, as for every algorithm (never a statistic of rounding noise).
-    avail = ok & (res.status == "ok") & (dof >= 1)
-    status = np.where(~avail, STATUS_UNAVAILABLE,
-                      np.where(dof >= 2, STATUS_OK, STATUS_NO_ISOLATION)).astype(object)
-    alarm = avail & res.alarm
-    rows = np.arange(n_ep)
-    names = np.array(data.sat_names + ("",), dtype=object)
+    sol = solve(data.pos_sv_ecef_m, data.pr_m, used, sig_int, sig_acc, per_sat["b_nom_m"],
+                per_sat["b_cont_m"], per_sat["p_sat"], per_sys["p_const"], data.sys_idx,
+                n_sys, rules=rules, fde=fde, params=params)
+    res, avail, alarm = sol.res, sol.avail, sol.alarm
 
     # The mode explaining the alarm (largest normalised separation), named.
     mode_names = _mode_names(res.modes, res.alarm_mode, data)
     alarm_mode = np.where(alarm, mode_names, "").astype(object)
-    single = _single_sat(res.modes, res.alarm_mode)
-
-    # Exclusion: a satellite, or every used satellite of a constellation.
-    excluded = np.zeros((n_ep, n_sat), dtype=bool)
     exc_name = np.full(n_ep, "", dtype=object)
-    dx_after = np.zeros((n_ep, 3))
-    if fde:
-        es, ec = res.excluded_sat, res.excluded_const
-        has_s = alarm & (es >= 0)
-        has_c = alarm & (ec >= 0)
-        excluded[rows[has_s], es[has_s]] = True
-        excluded |= has_c[:, None] & used & (data.sys_idx[None, :] == ec[:, None])
-        exc_name = np.where(has_s, names[np.where(es >= 0, es, -1)], exc_name)
+    if fde:  # what was excluded: a satellite or a constellation, named
+        names = np.array(data.sat_names + ("",), dtype=object)
         sys_names = np.array(tuple(data.systems) + ("",), dtype=object)
-        exc_name = np.where(has_c, sys_names[np.where(ec >= 0, ec, -1)], exc_name)
-        dx_after = np.where((has_s | has_c)[:, None], np.nan_to_num(res.dx_excluded_enu_m),
-                            0.0)
-    pos_before = np.where(avail[:, None], lin.pos_ecef_m, np.nan)
-    pos_after = np.where(avail[:, None], enu_to_ecef(dx_after, pos_lin), np.nan)
-    iso = np.where(excluded.sum(-1) == 1, np.argmax(excluded, axis=-1), -1)
-    isolated = np.where(iso >= 0, iso, np.where(alarm, single, -1))
+        es, ec = res.excluded_sat, res.excluded_const
+        exc_name = np.where(sol.has_sat, names[np.where(es >= 0, es, -1)], exc_name)
+        exc_name = np.where(sol.has_const, sys_names[np.where(ec >= 0, ec, -1)],
+                            exc_name).astype(object)
 
     hpl, vpl = res.hpl_m, res.vpl_m
     emt, sacc = res.emt_m, res.sigma_acc_v_m
@@ -263,16 +296,15 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
     if fde:
         cols["pl_set_by"] = _set_by(res, avail, data)
     cols["pl_note"] = _pl_note(res, avail, cols.get("pl_set_by"), data)
-    statistic = np.where(avail, res.test_ratio, np.nan)
     return AlgorithmOutput(
-        status=status,
-        statistic=statistic,
+        status=sol.status,
+        statistic=np.where(avail, res.test_ratio, np.nan),
         threshold=np.where(avail, 1.0, np.nan),
         alarm=alarm,
-        pos_before_ecef_m=pos_before,
-        pos_after_ecef_m=pos_after,
-        excluded=excluded & avail[:, None],
-        isolated=np.where(avail, isolated, -1),
+        pos_before_ecef_m=sol.pos_before,
+        pos_after_ecef_m=sol.pos_after,
+        excluded=sol.excluded,
+        isolated=sol.isolated,
         per_sat={"sigma_int_m": np.where(used, sig_int, np.nan),
                  "sigma_acc_m": np.where(used, sig_acc, np.nan)},
         columns=cols,
