@@ -117,8 +117,12 @@ def check_output(name: str, data: Measurements, out: AlgorithmOutput) -> None:
 def _score(s: Scenario, data: Measurements, truth: Truth, out: AlgorithmOutput
            ) -> ScenarioResult:
     table = make_table(data, truth, out)
-    return ScenarioResult(s, data, truth, out, table,
-                          summarize(table, notes=s.notes + data.notes))
+    notes = s.notes + data.notes
+    if out.p_fa is not None and out.p_fa != s.p_fa:
+        notes += (f"p_fa {s.p_fa:g} has no effect on {s.algorithm}: its tests are built "
+                  f"for a false-alarm probability of {out.p_fa:.3g} per epoch, which the "
+                  "summary uses",)
+    return ScenarioResult(s, data, truth, out, table, summarize(table, notes=notes))
 
 
 def _as_scenario(s, overrides) -> Scenario:

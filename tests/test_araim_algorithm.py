@@ -387,3 +387,21 @@ def test_all_mode_names_equal_the_per_mode_names():
                      for k in range(1, k_all)], axis=1)
     np.testing.assert_array_equal(got, want)
     assert "GAL" in set(want.ravel()) and "S03" in set(want.ravel())
+
+
+def test_summary_sets_false_alarms_against_araims_budget_not_the_scenario_p_fa(capsys):
+    """ARAIM's separation tests share (P_FA_VERT + P_FA_HOR) / N_es,cont per epoch: the
+    summary checks the fault-free alarm share against that, the scenario's p_fa (which
+    ARAIM does not use) is said to have no effect, and araim_constants move the budget."""
+    res = run_scenario(_araim(p_fa=1e-2, faults=[]))
+    prm = kernel.defaults()
+    budget = prm["p_fa_vert"] + prm["p_fa_hor"]
+    assert res.output.p_fa == pytest.approx(budget)
+    assert res.summary.p_fa == pytest.approx(budget)
+    assert any("p_fa 0.01 has no effect on araim" in n for n in res.summary.notes)
+    res2 = run_scenario(_araim(p_fa=1e-2, faults=[],
+                               araim_constants={"p_fa_vert": 1e-4, "n_es_cont": 2.0}))
+    assert res2.summary.p_fa == pytest.approx((1e-4 + prm["p_fa_hor"]) / 2.0)
+    parity = run_scenario(_araim(p_fa=1e-2, faults=[], algorithm="parity"))
+    assert parity.output.p_fa is None and parity.summary.p_fa == 1e-2
+    assert not any("no effect on" in n for n in parity.summary.notes)

@@ -22,6 +22,11 @@ scenario ``araim`` does), ``EMT <= emt_max_m`` (15 m) and ``sigma_acc <= sigma_a
 
 The model is linear about the all-in-view solution: a subset solution is
 ``x0 + (S^(k) y)[:3]`` in the ENU frame of ``x0``.
+
+False alarms: the separation tests share ``P_FA_VERT + P_FA_HOR`` (divided by
+``N_es,cont``) per epoch, a union bound over the modes, axes and signs (ARAIM.md section 6);
+the scenario's ``p_fa`` has no effect. The output carries this budget (``p_fa``) and the
+summary sets the fault-free alarm share against it.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import araim as kernel
+from ..araim import _params
 from ..geometry import enu_to_ecef
 from ..lsq import wls
 from ..measure.error_models import MAAST_ISM, araim_sigmas
@@ -229,6 +235,14 @@ def solve(sv, pr, used, sig_int, sig_acc, b_nom, b_cont, p_sat, p_const, sys_idx
         pos_after=np.where(avail[:, None], enu_to_ecef(dx_after, pos_lin), np.nan))
 
 
+def false_alarm_budget(rules: str, params: dict) -> float:
+    """The per-epoch false-alarm probability of the separation tests with the kernel
+    keywords ``params``: ``(P_FA_VERT + P_FA_HOR) / N_es,cont`` (ARAIM.md section 6; the
+    thresholds split it over the modes, the two horizontal axes and the signs)."""
+    prm = _params.resolve(rules, params)
+    return (prm["p_fa_vert"] + prm["p_fa_hor"]) / prm["n_es_cont"]
+
+
 def run(data: Measurements, options: dict) -> AlgorithmOutput:
     """Run ARAIM MHSS on every epoch (module doc).
 
@@ -309,6 +323,7 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
                  "sigma_acc_m": np.where(used, sig_acc, np.nan)},
         columns=cols,
         extras=_mode_extras(res.modes, avail, data),
+        p_fa=false_alarm_budget(rules, params),
     )
 
 

@@ -51,6 +51,10 @@ class AlgorithmOutput:
     columns : extra per-epoch columns (E,), e.g. ``"hpl_m"``, ``"vpl_m"``, ``"n_eff"``.
     extras : other per-epoch arrays (E, ...) for displays, not in the result table, e.g.
         ``"particles_ecef_m"`` (E, K, 3) and ``"particle_weight"`` (E, K) of ``pf-llr``.
+    p_fa : the false-alarm probability per epoch the algorithm's test is built for, when
+        it is not the scenario's ``p_fa`` (``araim``: its own budgets); None: the
+        scenario's. The summary sets the fault-free alarm share against it, and the run
+        notes that the scenario's ``p_fa`` has no effect.
     """
 
     status: np.ndarray
@@ -64,6 +68,7 @@ class AlgorithmOutput:
     per_sat: Mapping[str, np.ndarray] = field(default_factory=dict)
     columns: Mapping[str, np.ndarray] = field(default_factory=dict)
     extras: Mapping[str, np.ndarray] = field(default_factory=dict)
+    p_fa: float | None = None
 
     def expand_sats(self, cols, n_sats: int) -> AlgorithmOutput:
         """Map an output computed on the satellites ``cols`` back to ``n_sats`` satellites.

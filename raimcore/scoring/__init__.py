@@ -21,12 +21,13 @@ Rules, stated once:
 - *unavailable* epochs (too few satellites, singular geometry) carry NaN positions and enter
   no statistic; they are counted. *Detect-only* epochs (one redundant measurement) enter the
   detection rates but not the isolation rate; they are counted too.
-- *the error model against p_fa*: the fault-free alarm share is set against the scenario's
-  ``p_fa`` with its 95% interval (``Summary.false_alarm_check``); when the whole interval
-  lies above ``p_fa``, a note says that the error model under-bounds the errors and names
-  it. The share counts every available fault-free epoch (a filter's not-yet-armed epochs
-  too), and the interval assumes independent epochs: time-correlated real errors make
-  the true uncertainty wider.
+- *the error model against p_fa*: the fault-free alarm share is set against the run's
+  ``p_fa`` (the scenario's, or the algorithm's own: ARAIM's budgets) with its 95%
+  interval (``Summary.false_alarm_check``); when the whole interval lies above ``p_fa``,
+  a note says that the error model under-bounds the errors and names it. The share
+  counts every available fault-free epoch (a filter's not-yet-armed epochs too), and the
+  interval assumes independent epochs: time-correlated real errors make the true
+  uncertainty wider.
 """
 
 from __future__ import annotations
@@ -182,9 +183,12 @@ def _mean(x) -> float | None:
 def make_table(data: Measurements, truth: Truth, out: AlgorithmOutput) -> ResultTable:
     """The per-epoch result table: algorithm output plus errors and truth.
 
-    The table also keeps the run's ``p_fa`` and error model in its ``run_info`` dict,
-    which :func:`summarize` reads to set the alarm share against ``p_fa``."""
+    The table also keeps the run's ``p_fa`` (the algorithm's own, ``out.p_fa``, where it
+    has one: ARAIM's budgets) and error model in its ``run_info`` dict, which
+    :func:`summarize` reads to set the alarm share against ``p_fa``; the theoretical
+    detection probability ``pd_theory`` is that of a chi-square test at this ``p_fa``."""
     names = np.array(data.sat_names + ("",), dtype=object)
+    p_fa = float(data.p_fa if out.p_fa is None else out.p_fa)
     pos_true = truth.pos_rx_ecef_m
     err_b = ecef_to_enu(out.pos_before_ecef_m, pos_true)
     err_a = ecef_to_enu(out.pos_after_ecef_m, pos_true)
@@ -203,7 +207,7 @@ def make_table(data: Measurements, truth: Truth, out: AlgorithmOutput) -> Result
         n_states = 3 + np.any(used[..., None] & (cc[None] > 0), axis=1).sum(-1)
         dof = used.sum(-1) - n_states
         pd[rows] = detection_probability(proj, truth.fault_bias_m[np.ix_(rows, cols)], w, dof,
-                                         data.p_fa)
+                                         p_fa)
     thr = np.asarray(out.threshold, dtype=float)
     stat = np.asarray(out.statistic, dtype=float)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -235,7 +239,7 @@ def make_table(data: Measurements, truth: Truth, out: AlgorithmOutput) -> Result
                "excluded": np.asarray(out.excluded)}
     per_sat.update({k: np.asarray(v) for k, v in out.per_sat.items()})
     table = ResultTable(cols, per_sat, data.sat_names)
-    table.run_info = {"p_fa": float(data.p_fa), "error_model": data.error_model}
+    table.run_info = {"p_fa": p_fa, "error_model": data.error_model}
     return table
 
 
