@@ -944,6 +944,37 @@ def test_numba_equals_numpy_on_the_four_system_recording(shared_data, monkeypatc
     assert np.all(fast.alarm) and np.all(fast.excluded_sat == sat)
 
 
+@pytest.mark.parametrize("compiled", ["1", "0"])
+def test_a_lone_satellites_mode_separates_by_exactly_zero(compiled, monkeypatch):
+    """A satellite alone in its constellation only fixes its own clock: removing it leaves
+    the position as it is (S^(k) = S^(0) on the position rows), so its mode has sigma_ss,
+    b_ss, threshold and separation exactly 0 and the all-in-view's sigma and bias.
+    Computed, those were rounding noise (~1e-14 m) and |sep| / T of that noise decided
+    alarms and exclusions at random: with noise-only residuals the lone satellite's mode
+    must never be the alarm's, and the result must not depend on the compiled path."""
+    monkeypatch.setenv(_kernel_module.NUMBA_ENV, compiled)
+    rng = np.random.default_rng(5)
+    cons = np.array([0] * 9 + [1, 2, 2, 2, 2, 2])  # constellation 1: one satellite
+    az = rng.uniform(0, 360, (40, 15))
+    el = rng.uniform(10, 85, (40, 15))
+    g = geometry(az, el, cons, 3)
+    s = rng.uniform(0.8, 3.0, (40, 15))
+    res = mhss(g, s, 0.8 * s, np.full(15, 0.5), np.full(15, 0.1), np.full(15, 1e-4),
+               np.array([1e-8, 1e-4, 1e-4]), y=rng.normal(0, 1e-3, (40, 15)), fde=True,
+               return_modes=True)
+    m = res.modes
+    lone = np.flatnonzero(m.valid[0] & (m.sats[0, :, 9]) & (m.sats[0].sum(-1) == 1))
+    assert lone.size == 1
+    k = lone[0]
+    assert np.all(m.monitored[:, k])
+    for f in ("sigma_ss_m", "bias_ss_m", "threshold_m", "separation_m"):
+        assert np.all(getattr(m, f)[:, k] == 0.0), f
+    np.testing.assert_array_equal(m.sigma_m[:, k], m.sigma_m[:, 0])
+    np.testing.assert_array_equal(m.bias_m[:, k], m.bias_m[:, 0])
+    assert not np.any(res.alarm) and np.all(res.alarm_mode != k)
+    assert np.all(res.test_ratio < 0.1)
+
+
 def test_numba_is_not_imported_by_the_package():
     import subprocess
     import sys

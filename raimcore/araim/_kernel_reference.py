@@ -4,7 +4,9 @@ The plain numpy kernel kept verbatim for the agreement tests (``tests/test_araim
 the benchmark (``tests/benchmarks/bench_araim.py``): :func:`raimcore.araim.mhss._mhss` with
 ``reference=True`` runs it, one exclusion candidate at a time. The fast kernel must give the
 same availability, alarms and exclusions and the same protection levels to rounding.
-The formulas are those of :mod:`raimcore.araim.kernel` (see its docstring).
+The formulas are those of :mod:`raimcore.araim.kernel` (see its docstring); both write
+the exact statistics of the modes that remove only lone satellites of their constellations
+(:func:`raimcore.araim.kernel.void_modes`), whose computed values are rounding noise.
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import ndtr, ndtri
+
+from .kernel import set_void_modes, void_modes
 
 __all__ = ["evaluate"]
 
@@ -156,6 +160,7 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
         if sep is not None:
             sep[:, ks] = st[6]
 
+    set_void_modes(av, void_modes(size, present), sigma, bias, sigma_ss, bias_ss, sacc, sep)
     mon = av.ok[:, None] & count_ok[None, :] & (ratio > RATIO_MIN)
     mon[:, 0] = av.ok
     bad = ~mon

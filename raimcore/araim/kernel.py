@@ -285,6 +285,8 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
                 sep if sep is not None else np.empty(shape))
         _compiled_downdates(nb, av, g, cint, cacc, bnom, bcont, cons, removed, size, emptied,
                             present, need_acc, y, any_bnom, any_bcont, outs)
+        set_void_modes(av, void_modes(size, present), sigma, bias, sigma_ss, bias_ss, sacc,
+                       sep)
         return _finish_stats(av, count_ok, ratio, sigma, bias, sigma_ss, bias_ss, sacc,
                              sep, need_acc)
     x_acc = None
@@ -328,8 +330,35 @@ def subset_stats(av: AllInView, g, cint, cacc, bnom, bcont, cons, removed, *,
                      any_bnom, any_bcont)
         _store(outs, ks, st)
 
+    set_void_modes(av, void_modes(size, present), sigma, bias, sigma_ss, bias_ss, sacc, sep)
     return _finish_stats(av, count_ok, ratio, sigma, bias, sigma_ss, bias_ss, sacc, sep,
                          need_acc)
+
+
+def void_modes(size, present):
+    """(K,) bool: modes whose every removed satellite is the only one of its constellation
+    (``size`` and ``present`` of :func:`mode_classes`). Such a satellite fixes its own
+    clock and nothing else, so ``S^(k) = S^(0)`` on the position rows exactly: the
+    section 5 formulas give ``sigma_ss = b_ss = 0``, a zero separation and the
+    all-in-view's ``sigma`` and ``b``. Computed, they come out as rounding noise
+    (~1e-14 m), and the test ``|sep| / T`` would be noise over noise, an alarm or an
+    exclusion at random; :func:`set_void_modes` writes the exact values."""
+    return (size >= 1) & (size == np.sum(~present, axis=1))
+
+
+def set_void_modes(av, void, sigma, bias, sigma_ss, bias_ss, sacc, sep) -> None:
+    """Write the exact statistics of the ``void`` modes (:func:`void_modes`) in place
+    (``sacc``, ``sep``: where not None)."""
+    if not np.any(void):
+        return
+    sigma[:, void] = av.sigma[:, None, :]
+    bias[:, void] = av.bias[:, None, :]
+    sigma_ss[:, void] = 0.0
+    bias_ss[:, void] = 0.0
+    if sacc is not None:
+        sacc[:, void] = av.sigma_acc[:, None, 2]
+    if sep is not None:
+        sep[:, void] = 0.0
 
 
 def _nest_plan(cons, c: int, removed, size, emptied, present):
