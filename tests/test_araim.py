@@ -861,7 +861,8 @@ def numba_and_numpy(monkeypatch, fn):
     """``fn()`` with the compiled kernels, then with the numpy path; checks that each ran."""
     calls = []
     nb = _kernel_module.numba_kernels()
-    for name in ("downdate_modes", "pl_equations"):
+    names = ("downdate_modes", "pl_equations", "bisect_rows")
+    for name in names:
         real = getattr(nb, name)
 
         def counted(*a, _real=real, _name=name):
@@ -871,6 +872,7 @@ def numba_and_numpy(monkeypatch, fn):
         monkeypatch.setattr(nb, name, counted)
     compiled = fn()
     assert {"downdate_modes", "pl_equations"} <= set(calls)
+    assert "bisect_rows" in calls or nb.scipy_ndtr() is None
     calls.clear()
     monkeypatch.setenv(_kernel_module.NUMBA_ENV, "0")
     plain = fn()
@@ -942,6 +944,35 @@ def test_numba_equals_numpy_on_the_four_system_recording(shared_data, monkeypatc
     fast, plain = numba_and_numpy(monkeypatch, lambda: real(*a, **kw))
     assert_same_result(fast, plain)
     assert np.all(fast.alarm) and np.all(fast.excluded_sat == sat)
+
+
+@needs_numba
+@pytest.mark.parametrize("capped", [False, True])
+def test_compiled_bisection_gives_numpys_bits(capped, monkeypatch):
+    """The compiled search (scipy's ndtr, numpy's summation order, tail terms bounded) is
+    bit for bit the numpy search, at MAAST's tolerance and at 1e-9 m (steps close to the
+    root, where the bound cannot decide and the full sum is formed), for term counts
+    around numpy's summation blocks (8, 128) and with NaN terms."""
+    nb = _kernel_module.numba_kernels()
+    if nb.scipy_ndtr() is None:
+        pytest.skip("this scipy does not export ndtr to compiled code")
+    rng = np.random.default_rng(88)
+    for j in (1, 7, 8, 9, 127, 128, 129, 300, 1100):
+        r = 120
+        c = rng.normal(5.0, 3.0, (r, j))
+        sig = rng.uniform(0.5, 4.0, (r, j))
+        p = np.where(rng.random((r, j)) < 0.9, 10.0 ** rng.uniform(-12, -4, (r, j)), 0.0)
+        a = rng.uniform(0.01, 1.0, (r, j)) if capped else np.ones((r, j))
+        c[0, 0] = np.nan
+        br = _kernel_module.pl_bracket(c, sig, p, a, 10.0 ** rng.uniform(-9, -6, r))
+        for tol in (5e-2, 1e-9):
+            rows = rng.random(r) < 0.8
+            fast = _kernel_module.pl_bisect(br, tol, rows=rows)
+            monkeypatch.setenv(_kernel_module.NUMBA_ENV, "0")
+            plain = _kernel_module.pl_bisect(br, tol, rows=rows)
+            monkeypatch.delenv(_kernel_module.NUMBA_ENV)
+            np.testing.assert_array_equal(fast, plain)
+            assert np.isfinite(plain).sum() > 10  # rows really searched
 
 
 @pytest.mark.parametrize("compiled", ["1", "0"])

@@ -23,13 +23,24 @@ Compiled once per machine with an on-disk cache (``cache=True``).
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 __all__ = ["downdate_modes", "nested_bases", "solve_subsets", "pl_equations",
-           "thresholds_and_test", "warm_up"]
+           "thresholds_and_test", "bisect_rows", "scipy_ndtr", "warm_up"]
+
+#: Normalised offsets above which a PL term is "small" in :func:`bisect_rows`:
+#: ``Q(x) <= Q(X_SMALL)``, about 6e-16, so its share of the sum is bounded, not computed.
+X_SMALL = 8.0
+#: ``Q(X_SMALL)`` rounded up (scipy: ``ndtr(-8) = 6.22e-16``).
+Q_SMALL = 6.23e-16
+_U = 2.0 ** -53  # unit roundoff of a double
 
 
 
@@ -52,7 +63,7 @@ def downdate_modes(pb, mb, sigb2, ratio_b, d2, xb, dy, rb, p0, cint, cacc, bnom,
     e_n = pb.shape[0]
     n = pb.shape[3]
     kr = idx.shape[0]
-    a = np.empty((3, 2))
+    a = np.zeros((3, 2))
     for e in range(e_n):
         for j in range(kr):
             base = jb[j]
@@ -114,20 +125,36 @@ def downdate_modes(pb, mb, sigb2, ratio_b, d2, xb, dy, rb, p0, cint, cacc, bnom,
                                                          + a1 * rb[e, base, b1])
             ratio[e, k] = ratio_b[e, base] * det if good else 0.0
             if any_bnom or any_bcont or need_acc:
-                for q in range(3):
-                    sb_ = 0.0
-                    sbs = 0.0
-                    for i in range(n):
-                        ds = a[q, 0] * mb[e, base, b0, i]
-                        if r == 2:
-                            ds += a[q, 1] * mb[e, base, idx[j, 1], i]
-                        s_k = pb[e, base, q, i] - ds
-                        if any_bnom:
-                            sb_ += abs(s_k) * bnom[e, i]
-                        if any_bcont:
-                            sbs += abs(s_k - p0[e, q, i]) * bcont[e, i]
-                    bias[e, k, q] = sb_
-                    bias_ss[e, k, q] = sbs
+                # The three axes in one pass over the satellites: six independent sums
+                # (each in the satellites' order, as one axis at a time would take it).
+                b1 = idx[j, 1] if r == 2 else b0
+                a00, a10, a20 = a[0, 0], a[1, 0], a[2, 0]
+                a01, a11, a21 = a[0, 1], a[1, 1], a[2, 1]
+                sb0 = sb1 = sb2 = 0.0
+                ss0 = ss1 = ss2 = 0.0
+                for i in range(n):
+                    u = mb[e, base, b0, i]
+                    d0, d1, d2_ = a00 * u, a10 * u, a20 * u
+                    if r == 2:
+                        v = mb[e, base, b1, i]
+                        d0 += a01 * v
+                        d1 += a11 * v
+                        d2_ += a21 * v
+                    s0_ = pb[e, base, 0, i] - d0
+                    s1_ = pb[e, base, 1, i] - d1
+                    s2_ = pb[e, base, 2, i] - d2_
+                    if any_bnom:
+                        w = bnom[e, i]
+                        sb0 += abs(s0_) * w
+                        sb1 += abs(s1_) * w
+                        sb2 += abs(s2_) * w
+                    if any_bcont:
+                        w = bcont[e, i]
+                        ss0 += abs(s0_ - p0[e, 0, i]) * w
+                        ss1 += abs(s1_ - p0[e, 1, i]) * w
+                        ss2 += abs(s2_ - p0[e, 2, i]) * w
+                bias[e, k, 0], bias[e, k, 1], bias[e, k, 2] = sb0, sb1, sb2
+                bias_ss[e, k, 0], bias_ss[e, k, 1], bias_ss[e, k, 2] = ss0, ss1, ss2
                 if need_acc:
                     v = 0.0
                     for i in range(n):
@@ -368,6 +395,186 @@ def thresholds_and_test(sigma_ss, bias_ss, mon, k_fa, sep, has_y, thr, worst_mod
         worst_mode[e] = bi
 
 
+@functools.lru_cache(maxsize=1)
+def scipy_ndtr():
+    """The address of scipy's own ``ndtr`` (the C function behind ``scipy.special.ndtr``,
+    exported by ``scipy.special.cython_special`` as ``double f(double, int)``) for
+    :func:`_ndtr_at`, or None where this scipy does not export it with that signature or
+    it does not return what ``scipy.special.ndtr`` returns (the caller then stays in
+    numpy). An address passed at run time, not a ctypes object (which numba would bake
+    into the cached machine code, wrong in the next process)."""
+    try:
+        import scipy.special
+        import scipy.special.cython_special as cs
+        from numba.extending import get_cython_function_address
+
+        get_name = ctypes.pythonapi.PyCapsule_GetName
+        get_name.restype, get_name.argtypes = ctypes.c_char_p, [ctypes.py_object]
+        want = b"double (double, int __pyx_skip_dispatch)"
+        names = [k for k, cap in cs.__pyx_capi__.items()
+                 if (k == "ndtr" or (k.startswith("__pyx_fuse_") and k.endswith("ndtr")
+                                     and k[11:-4].isdigit())) and get_name(cap) == want]
+        if len(names) != 1:
+            return None
+        addr = get_cython_function_address("scipy.special.cython_special", names[0])
+        fn = ctypes.CFUNCTYPE(ctypes.c_double, ctypes.c_double, ctypes.c_int)(addr)
+        probe = np.array([-40.0, -8.5, -3.0, -0.5, 0.0, 0.7, 9.0])
+        if not np.array_equal([fn(float(v), 1) for v in probe], scipy.special.ndtr(probe)):
+            return None
+        return int(addr)
+    except Exception:  # noqa: BLE001 - any failure: the numpy search runs instead
+        return None
+
+
+@intrinsic
+def _ndtr_at(typingctx, addr, x):
+    """``f(x, 1)`` for the C function ``double f(double, int)`` at the address ``addr``
+    (an integer known at run time only, so the compiled caller can be cached)."""
+    sig = types.float64(types.intp, types.float64)
+
+    def codegen(context, builder, signature, args):
+        fnty = ir.FunctionType(ir.DoubleType(), [ir.DoubleType(), ir.IntType(32)])
+        fptr = builder.inttoptr(args[0], fnty.as_pointer())
+        return builder.call(fptr, [args[1], ir.Constant(ir.IntType(32), 1)])
+
+    return sig, codegen
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _pairwise_leaf(a, lo, n):
+    """numpy's pairwise summation of ``a[lo:lo + n]``, ``n <= 128``: one pass with eight
+    partial sums (sequential below eight terms)."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    stop = n - n % 8
+    while i < stop:
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _pairwise_sum(a, lo, n):
+    """``a[lo:lo + n].sum()`` in numpy's own order, so the result is the bit pattern
+    ``np.sum(..., axis=1)`` gives for a C-contiguous row: runs above 128 split in two
+    halves (the first a multiple of 8) summed separately and added, below that
+    :func:`_pairwise_leaf`. numpy's recursion walked with an explicit stack (a cached
+    recursive numba function crashes when loaded in the next process)."""
+    if n <= 128:
+        return _pairwise_leaf(a, lo, n)
+    f_lo = np.empty(64, np.int64)
+    f_n = np.empty(64, np.int64)
+    f_left = np.empty(64)
+    f_stage = np.zeros(64, np.int64)  # 0: new, 1: left half pending, 2: right pending
+    top = 0
+    f_lo[0], f_n[0] = lo, n
+    while True:
+        cl, cn = f_lo[top], f_n[top]
+        if cn > 128:  # first visit of a split: its left half next
+            n2 = cn // 2
+            n2 -= n2 % 8
+            f_stage[top] = 1
+            top += 1
+            f_lo[top], f_n[top], f_stage[top] = cl, n2, 0
+            continue
+        ret = _pairwise_leaf(a, cl, cn)
+        top -= 1
+        while top >= 0:  # hand the value up
+            if f_stage[top] == 1:  # its left half: keep it, go to the right half
+                f_left[top] = ret
+                f_stage[top] = 2
+                n2 = f_n[top] // 2
+                n2 -= n2 % 8
+                f_lo[top + 1], f_n[top + 1] = f_lo[top] + n2, f_n[top] - n2
+                f_stage[top + 1] = 0
+                top += 1
+                break
+            ret = f_left[top] + ret
+            top -= 1
+        if top < 0:
+            return ret
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _capped_qm(x, cap, capped, ndtr):
+    """``min(Qm(x), cap)`` (the cap only if ``capped``) as ``pl_bisect`` computes it:
+    ``Qm = 1`` below 0, scipy's ``ndtr(-x)`` otherwise, NaN kept as ``np.minimum``
+    keeps it."""
+    qm = 1.0 if x < 0.0 else _ndtr_at(ndtr, -x)
+    if capped and (cap < qm or cap != cap):
+        qm = cap
+    return qm
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def bisect_rows(c, sig, p, a, tgt, low, up, rows, tol, steps, capped, ndtr):
+    """``kernel.pl_bisect``'s half-interval search on the rows ``rows``, ``low`` and
+    ``up`` (R,) moved in place; ``c``, ``sig``, ``p``, ``a`` (R, J), ``tgt`` (R,) as in
+    ``kernel.PlBracket``; ``ndtr`` is the address :func:`scipy_ndtr` returns.
+
+    Every step takes the decision numpy takes, ``sum_j p_j min(Qm(x_j), a_j) > tgt``
+    (its products, its ``ndtr``, its pairwise sum), so the output is bit for bit
+    ``pl_bisect``'s. Most terms sit far in the tail (``x_j > X_SMALL``: a share below
+    ``6e-16`` each); a step first sums the others and bounds the tail by
+    ``Q_SMALL sum p_j``: when that sum clears the budget by more than the tail bound plus
+    the rounding of either sum (``4 J u`` relative), the full sum lies on the same side
+    and is not formed; otherwise (rare: a root within ~1e-12 of the midpoint, or NaN) the
+    step forms numpy's sum term by term.
+    """
+    k_n = c.shape[1]
+    terms = np.empty(k_n)
+    rel = 4.0 * k_n * _U
+    for r in rows:
+        lo = low[r]
+        hi = up[r]
+        tg = tgt[r]
+        for _ in range(steps):
+            if not hi - lo > tol:
+                break
+            mid = 0.5 * (lo + hi)
+            major = 0.0
+            p_small = 0.0
+            for j in range(k_n):
+                x = (mid - c[r, j]) / sig[r, j]
+                if x > X_SMALL:
+                    p_small += p[r, j]
+                    continue
+                major += p[r, j] * _capped_qm(x, a[r, j], capped, ndtr)
+            err = rel * major + 1e-300
+            if major - err > tg:
+                high = True
+            elif major + err + 2.0 * Q_SMALL * p_small < tg:
+                high = False
+            else:  # numpy's sum, term by term
+                for j in range(k_n):
+                    x = (mid - c[r, j]) / sig[r, j]
+                    terms[j] = p[r, j] * _capped_qm(x, a[r, j], capped, ndtr)
+                high = _pairwise_sum(terms, 0, k_n) > tg
+            if high:
+                lo = mid
+            else:
+                hi = mid
+        low[r] = lo
+        up[r] = hi
+
+
 def warm_up() -> None:
     """Compile (or load from the on-disk cache) both kernels on a tiny problem."""
     e, j, n, kk = 1, 1, 5, 2
@@ -397,3 +604,8 @@ def warm_up() -> None:
                   np.zeros((e, kk, 3, n)), np.zeros((e, kk)))
     thresholds_and_test(out3, out3, np.ones((e, kk), bool), np.ones((e, 3)), out3, True,
                         out3.copy(), np.zeros(e, np.int64), np.zeros(e))
+    addr = scipy_ndtr()
+    if addr is not None:
+        for capped in (False, True):
+            bisect_rows(r3, r3 + 1.0, r3 + 1.0, r3 + 1.0, np.ones(3 * e), np.zeros(3 * e),
+                        np.ones(3 * e), np.arange(3 * e, dtype=np.int64), 0.5, 2, capped, addr)
