@@ -1,9 +1,11 @@
 """Compiled kernels of a particle-bank step (``ParticleBank(kernel="numba")``, :mod:`.pf`).
 
-One pass over ``(filters, particles)`` does the per-particle work of the numpy fast kernel
-(:func:`raimcore.algorithms.pf._propose_fast`) without temporaries: the motion, the
-drift's prior mean, the residuals, each system's masked median, the clock proposal and
-its importance ratio, the drift conditioning and the log-likelihood; a second pass
+One pass over the filters does the per-particle work of the numpy fast kernel
+(:func:`raimcore.algorithms.pf._propose_fast`), each step a loop over a filter's particles
+held particle-last in small buffers (loops the compiler vectorises): the motion, the
+drift's prior mean, the residuals, each system's masked median (a comparator network),
+the clock proposal and its importance ratio, the drift conditioning and the
+log-likelihood; a second pass
 normalises the weights (log normaliser, ``N_eff``, weighted mean) and a third resamples
 the filters that need it by counting copies (:func:`raimcore.algorithms.pf._resample_fast`).
 
@@ -69,6 +71,101 @@ def _logpdf(x, noise_kind, sigma, nu, eps, mix_scale, const):
     return _logaddexp(a, b) - 0.5 * _LOG_2PI
 
 
+def _median_networks(largest):
+    """Comparator networks that put the two middle order statistics of ``k`` values,
+    ``(k - 1) // 2`` and ``k // 2``, in those positions, for ``k = 0 .. largest``:
+    Batcher's merge exchange (Knuth, TAOCP vol. 3, 5.2.2, Algorithm M) pruned to the
+    comparators those two outputs depend on. Returns ``(pairs, first)``: the comparators
+    ``(a, b)``, ``a < b`` (the smaller value to ``a``), of ``k`` values at
+    ``pairs[first[k]:first[k + 1]]``."""
+    pairs, first = [], [0]
+    for k in range(largest + 1):
+        net = []
+        t = max(1, (k - 1).bit_length())
+        p = 1 << (t - 1)
+        while p > 0 and k > 1:
+            q, r, d = 1 << (t - 1), 0, p
+            while d > 0:
+                net += [(i, i + d) for i in range(k - d) if i & p == r]
+                d, q, r = q - p, q >> 1, p
+            p >>= 1
+        need, kept = {(k - 1) // 2, k // 2}, []
+        for a, b in reversed(net):
+            if a in need or b in need:
+                kept.append((a, b))
+                need |= {a, b}
+        pairs += kept[::-1]
+        first.append(len(pairs))
+    return np.array(pairs, dtype=np.int64).reshape(-1, 2), np.array(first, dtype=np.int64)
+
+
+#: The median networks of :func:`_medians` (a system with more satellites takes
+#: :func:`_medians_sorted`); numba keeps these global arrays as constants of the kernel.
+_NET_LARGEST = 32
+_NET_PAIRS, _NET_FIRST = _median_networks(_NET_LARGEST)
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _medians_sorted(res, lo, kk, order, buf, bufj, out):
+    """:func:`_medians` by an insertion sort, particle by particle (any input, NaN
+    included: the previous kernel's sort, where a NaN keeps its place). The rows are taken
+    in the order that sorted the previous particle's values, ``order[lo:lo + kk]`` (kept
+    across the calls of a filter): its particles are close, so that order nearly sorts
+    theirs too."""
+    for p in range(res.shape[1]):
+        for i in range(kk):
+            j = order[lo + i]
+            v = res[j, p]
+            c = i
+            while c > 0 and buf[c - 1] > v:
+                buf[c] = buf[c - 1]
+                bufj[c] = bufj[c - 1]
+                c -= 1
+            buf[c] = v
+            bufj[c] = j
+        for i in range(kk):
+            order[lo + i] = bufj[i]
+        out[p] = (buf[(kk - 1) // 2] + buf[kk // 2]) * 0.5
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _medians(res, lo, kk, order, buf, bufj, srt, out):
+    """``out`` (n,): for every particle (column) of ``res`` (k, n), the mean of the order
+    statistics ``(kk - 1) // 2`` and ``kk // 2`` of its rows ``lo .. lo + kk`` (the fast
+    kernel's median; 0 when ``kk`` is 0).
+
+    A comparator network (:data:`_NET_PAIRS`) on a copy in ``srt`` (k, n), each comparator
+    applied to all the particles at once (a loop without branches, vectorised): the values
+    of any sort but for the sign of a zero, which the sums that use the medians never see
+    (they start at +0, and ``+0 + -0 = +0``). A NaN among the values, or more than
+    :data:`_NET_LARGEST` of them: :func:`_medians_sorted` (``order``, ``buf``, ``bufj``
+    (k,) its work arrays)."""
+    n = res.shape[1]
+    if kk == 0:
+        for p in range(n):
+            out[p] = 0.0
+        return
+    nan = 0
+    for i in range(kk):
+        for p in range(n):
+            v = res[lo + i, p]
+            srt[i, p] = v
+            nan += v != v
+    if nan or kk > _NET_LARGEST:
+        _medians_sorted(res, lo, kk, order, buf, bufj, out)
+        return
+    for m in range(_NET_FIRST[kk], _NET_FIRST[kk + 1]):
+        a, b = _NET_PAIRS[m, 0], _NET_PAIRS[m, 1]
+        for p in range(n):
+            u = srt[a, p]
+            v = srt[b, p]
+            srt[a, p] = v if v < u else u
+            srt[b, p] = u if v < u else v
+    a, b = (kk - 1) // 2, kk // 2
+    for p in range(n):
+        out[p] = (srt[a, p] + srt[b, p]) * 0.5
+
+
 @njit(cache=True, fastmath=False, error_model="numpy")
 def propose_rows(x, noise_std, z, pick, sv, pr, mask, sys_idx, n_clk, clk0, cv, dt_s,
                  c_pos, c_vel, has_drift, drift, dt, informative, chol_s, gain, chol_p,
@@ -77,6 +174,13 @@ def propose_rows(x, noise_std, z, pick, sv, pr, mask, sys_idx, n_clk, clk0, cv, 
                  ll_prod):
     """The clock proposal of every particle of every filter, in place
     (:func:`raimcore.algorithms.pf._propose_fast`, the same draws and formulas).
+
+    Filter by filter, the particles' states, draws and residuals are copied to buffers
+    with the particle last (one row of n per state, satellite or clock), so that each
+    step below is a loop over the particles that the compiler vectorises; every
+    particle's sums keep the order (and so the rounding) of the per-particle loops they
+    replace. The filter's satellites in ``mask`` are gathered system by system first
+    (the others are never read: weight 0, no median).
 
     Parameters
     ----------
@@ -103,27 +207,47 @@ def propose_rows(x, noise_std, z, pick, sv, pr, mask, sys_idx, n_clk, clk0, cv, 
         (not scaled) ``ll`` holds ``sum ln(1 + t_j^2)`` less ``ln ll_prod`` (R, N), the
         rest of the sum as a product, and the caller finishes it (:func:`student_t_ll`).
     """
-    rows, n, _ = x.shape
+    rows, n, d = x.shape
     s_n = sv.shape[1]
+    q = n_clk
     mode = 2
     inv_s = 1.0
     if not scaled and noise_kind == NOISE_GAUSSIAN:
         mode, inv_s = 0, 1.0 / sigma
     elif not scaled and noise_kind == NOISE_STUDENT_T:
         mode, inv_s = 1, 1.0 / (sigma * math.sqrt(nu))
-    resid = np.zeros(s_n)
-    buf = np.empty(s_n)
-    bufj = np.empty(s_n, dtype=np.int64)
-    used = np.empty(s_n, dtype=np.int64)  # the row's satellites in mask, system by system
-    order = np.empty(s_n, dtype=np.int64)  # the same, each system's in the last sort's order
+    elif noise_kind == NOISE_GAUSSIAN:  # scaled: _logpdf's Gaussian written out
+        mode = 3
+    log_sigma = math.log(sigma)
+    half_log_2pi = 0.5 * _LOG_2PI
+    # The satellites in mask, system by system (start: each system's first), as
+    # -2 s, |s|^2, the pseudorange and the scale.
+    used = np.empty(s_n, dtype=np.int64)
     start = np.zeros(n_clk + 1, dtype=np.int64)
     m2s = np.empty((s_n, 3))
     ss = np.empty(s_n)
-    centre = np.empty(n_clk)
-    ec = np.empty(n_clk)
-    et = np.empty(n_clk)
-    mu = np.empty(n_clk)
-    dv = np.empty(n_clk)
+    prc = np.empty(s_n)
+    scc = np.empty(s_n)
+    lsc = np.empty(s_n)
+    order = np.empty(s_n, dtype=np.int64)  # _medians_sorted's kept order
+    buf = np.empty(s_n)
+    bufj = np.empty(s_n, dtype=np.int64)
+    # Particle-last buffers: one row of n particles per state, satellite or clock (the
+    # inner index a loop counter: no negative-index fix-up, loops the compiler vectorises).
+    xt = np.empty((d, n))  # the states
+    res = np.empty((s_n, n))  # the residuals of the gathered satellites
+    srt = np.empty((s_n, n))  # _medians' copy
+    zt = np.empty((q, n))
+    ec = np.empty((q, n))  # the offset noise e (chol(S) z, or the proposal's draw)
+    centre = np.empty((q, n))
+    mu = np.empty((q, n))
+    et = np.empty((q, n))
+    dv = np.empty((q, n))
+    xx = np.empty(n)
+    acc = np.empty(n)
+    acc2 = np.empty(n)
+    qs = np.empty(n)
+    qp = np.empty(n)
     for r in range(rows):
         k = 0
         for s in range(n_clk):
@@ -133,132 +257,158 @@ def propose_rows(x, noise_std, z, pick, sv, pr, mask, sys_idx, n_clk, clk0, cv, 
                     used[k] = j
                     k += 1
         start[n_clk] = k
-        order[:k] = used[:k]
-        for j in range(s_n):
+        for i in range(k):
+            j = used[i]
             s0, s1, s2 = sv[r, j, 0], sv[r, j, 1], sv[r, j, 2]
-            m2s[j, 0], m2s[j, 1], m2s[j, 2] = -2.0 * s0, -2.0 * s1, -2.0 * s2
-            ss[j] = s0 * s0 + s1 * s1 + s2 * s2
-        inf = informative[r]
+            m2s[i, 0], m2s[i, 1], m2s[i, 2] = -2.0 * s0, -2.0 * s1, -2.0 * s2
+            ss[i] = s0 * s0 + s1 * s1 + s2 * s2
+            prc[i] = pr[r, j]
+            scc[i] = scale[r, j]
+            lsc[i] = log_scale[r, j]
+            order[i] = i
+        for p in range(n):  # element by element: no array views (reference counts)
+            for i in range(d):
+                xt[i, p] = x[r, p, i]
+            for i in range(q):
+                zt[i, p] = z[r, p, i]
+        # Motion (pf._move / _move_fast).
+        if cv:
+            for i in range(3):
+                for p in range(n):
+                    xt[i, p] += xt[3 + i, p] * dt_s + c_pos * noise_std[r, p, i]
+            for i in range(3):
+                for p in range(n):
+                    xt[3 + i, p] += c_vel * noise_std[r, p, 3 + i]
+        else:
+            for i in range(3):
+                for p in range(n):
+                    xt[i, p] += noise_std[r, p, i] * c_pos
+        if has_drift:  # the prior mean b + d dt
+            for i in range(n_clk):
+                for p in range(n):
+                    xt[clk0 + i, p] += xt[drift, p] * dt
+        # Residuals (pf._residuals_fast: |s - r|^2 = -2 s.r + |r|^2 + |s|^2).
         for p in range(n):
-            # No array views in this loop (each would count references): x[r, p, i].
-            # Motion (pf._move / _move_fast).
-            if cv:
-                for i in range(3):
-                    x[r, p, i] += x[r, p, 3 + i] * dt_s + c_pos * noise_std[r, p, i]
-                for i in range(3):
-                    x[r, p, 3 + i] += c_vel * noise_std[r, p, 3 + i]
-            else:
-                for i in range(3):
-                    x[r, p, i] += noise_std[r, p, i] * c_pos
-            if has_drift:  # the prior mean b + d dt
-                for i in range(n_clk):
-                    x[r, p, clk0 + i] += x[r, p, drift] * dt
-            # Residuals (pf._residuals_fast: |s - r|^2 = -2 s.r + |r|^2 + |s|^2), of the
-            # satellites in mask only: the others are never read (weight 0, no median).
-            x0, x1, x2 = x[r, p, 0], x[r, p, 1], x[r, p, 2]
-            xx = x0 * x0 + x1 * x1 + x2 * x2
+            xx[p] = xt[0, p] * xt[0, p] + xt[1, p] * xt[1, p] + xt[2, p] * xt[2, p]
+        for s in range(n_clk):
+            for i in range(start[s], start[s + 1]):
+                a0, a1, a2, ssi, pri = m2s[i, 0], m2s[i, 1], m2s[i, 2], ss[i], prc[i]
+                for p in range(n):
+                    r2 = a0 * xt[0, p] + a1 * xt[1, p] + a2 * xt[2, p]
+                    r2 += xx[p]
+                    r2 += ssi
+                    res[i, p] = pri - math.sqrt(r2) - xt[clk0 + s, p]
+        # The state equation's draw e = chol(S) z.
+        for i in range(q):
+            for p in range(n):
+                ec[i, p] = 0.0
+            for c in range(q):
+                f = chol_s[r, i, c]
+                for p in range(n):
+                    ec[i, p] += f * zt[c, p]
+        if informative[r]:
+            for s in range(n_clk):  # each system's median
+                _medians(res, start[s], start[s + 1] - start[s], order, buf, bufj, srt,
+                         centre[s])
+            for i in range(q):
+                for p in range(n):
+                    mu[i, p] = 0.0
+                    et[i, p] = 0.0
+                for c in range(q):
+                    g, h = gain[r, i, c], chol_p[r, i, c]
+                    for p in range(n):
+                        mu[i, p] += g * centre[c, p]
+                        et[i, p] += h * zt[c, p]
+                for p in range(n):
+                    et[i, p] = et[i, p] + mu[i, p]
+                    if pick[r, p] < alpha:  # the prior component
+                        et[i, p] = ec[i, p]
+                    dv[i, p] = mu[i, p] - et[i, p]
+            for p in range(n):
+                qs[p] = 0.0
+                qp[p] = 0.0
+            for i in range(q):
+                for p in range(n):
+                    acc[p] = 0.0
+                    acc2[p] = 0.0
+                for c in range(q):
+                    fs, fp = s_inv[r, i, c], p_inv[r, i, c]
+                    for p in range(n):
+                        acc[p] += fs * et[c, p]
+                        acc2[p] += fp * dv[c, p]
+                for p in range(n):
+                    qs[p] += acc[p] * et[i, p]
+                    qp[p] += acc2[p] * dv[i, p]
+            hs, hp = hls[r], hlp[r]
+            for p in range(n):
+                log_s[r, p] = qs[p] * -0.5 - hs
+                log_p[r, p] = qp[p] * -0.5 - hp + log_1ma
+            for i in range(q):
+                for p in range(n):
+                    ec[i, p] = et[i, p]
+        else:
+            for p in range(n):
+                log_s[r, p] = 0.0
+                log_p[r, p] = 0.0
+        for p in range(n):
+            acc[p] = 0.0  # the sum of e
+        for i in range(q):
+            for p in range(n):
+                xt[clk0 + i, p] += ec[i, p]
+                acc[p] += ec[i, p]
+        if has_drift:
+            g = drift_gain[r]
+            for p in range(n):
+                xt[drift, p] += g * acc[p]
+        for s in range(n_clk):
+            for i in range(start[s], start[s + 1]):
+                for p in range(n):
+                    res[i, p] -= ec[s, p]
+        # Log-likelihood, written out here (a call per particle costs more than it).
+        for p in range(n):
+            acc[p] = 0.0
+        if mode == 0:  # Gaussian: pf._log_likelihood_rows's form
             for i in range(k):
-                j = used[i]
-                r2 = m2s[j, 0] * x0 + m2s[j, 1] * x1 + m2s[j, 2] * x2
-                r2 += xx
-                r2 += ss[j]
-                resid[j] = pr[r, j] - math.sqrt(r2) - x[r, p, clk0 + sys_idx[j]]
-            # The state equation's draw e = chol(S) z.
-            for i in range(n_clk):
-                acc = 0.0
-                for c in range(n_clk):
-                    acc += chol_s[r, i, c] * z[r, p, c]
-                ec[i] = acc
-            ls = 0.0
-            lp = 0.0
-            if inf:
-                for s in range(n_clk):  # each system's median
-                    # Insertion sort, the satellites taken in the order that sorted the
-                    # previous particle's residuals: the particles of a filter are close,
-                    # so that order nearly sorts these too (few moves, branches that the
-                    # processor predicts); the kept order is then this particle's.
-                    kk = start[s + 1] - start[s]
-                    for i in range(kk):
-                        j = order[start[s] + i]
-                        v = resid[j]
-                        c = i
-                        while c > 0 and buf[c - 1] > v:
-                            buf[c] = buf[c - 1]
-                            bufj[c] = bufj[c - 1]
-                            c -= 1
-                        buf[c] = v
-                        bufj[c] = j
-                    for i in range(kk):
-                        order[start[s] + i] = bufj[i]
-                    # The mean of the order statistics (k - 1) // 2 and k // 2, as the
-                    # fast kernel's; 0 without a satellite.
-                    centre[s] = (buf[(kk - 1) // 2] + buf[kk // 2]) * 0.5 if kk > 0 else 0.0
-                for i in range(n_clk):
-                    acc_mu = 0.0
-                    acc_p = 0.0
-                    for c in range(n_clk):
-                        acc_mu += gain[r, i, c] * centre[c]
-                        acc_p += chol_p[r, i, c] * z[r, p, c]
-                    mu[i] = acc_mu
-                    et[i] = acc_p + acc_mu
-                if pick[r, p] < alpha:
-                    for i in range(n_clk):
-                        et[i] = ec[i]
-                for i in range(n_clk):
-                    dv[i] = mu[i] - et[i]
-                qs = 0.0
-                qp = 0.0
-                for i in range(n_clk):
-                    as_ = 0.0
-                    ap = 0.0
-                    for c in range(n_clk):
-                        as_ += s_inv[r, i, c] * et[c]
-                        ap += p_inv[r, i, c] * dv[c]
-                    qs += as_ * et[i]
-                    qp += ap * dv[i]
-                ls = qs * -0.5 - hls[r]
-                lp = qp * -0.5 - hlp[r] + log_1ma
-                for i in range(n_clk):
-                    ec[i] = et[i]
-            log_s[r, p] = ls
-            log_p[r, p] = lp
-            esum = 0.0
-            for i in range(n_clk):
-                x[r, p, clk0 + i] += ec[i]
-                esum += ec[i]
-            if has_drift:
-                x[r, p, drift] += drift_gain[r] * esum
+                for p in range(n):
+                    t = res[i, p] * inv_s
+                    acc[p] += t * t
+            for p in range(n):
+                ll[r, p] = acc[p] * -0.5 - const * k
+        elif mode == 1:
+            # Student-t: sum ln(1 + t^2) as the log of a product, one logarithm per
+            # particle instead of one per satellite (the same value to rounding), taken
+            # early only before the product could overflow; the last one by the caller,
+            # for all particles at once (student_t_ll).
+            for p in range(n):
+                acc2[p] = 1.0
             for i in range(k):
-                j = used[i]
-                resid[j] -= ec[sys_idx[j]]
-            # Log-likelihood, written out here (a call per particle costs more than it).
-            acc = 0.0
-            if mode == 0:  # Gaussian: pf._log_likelihood_rows's form
-                for i in range(k):
-                    t = resid[used[i]] * inv_s
-                    acc += t * t
-                acc = acc * -0.5 - const * k
-            elif mode == 1:
-                # Student-t: sum ln(1 + t^2) as the log of a product, one logarithm per
-                # particle instead of one per satellite (the same value to rounding),
-                # taken early only before the product could overflow; the last one by the
-                # caller, for all particles at once (student_t_ll).
-                prod = 1.0
-                for i in range(k):
-                    t = resid[used[i]] * inv_s
+                for p in range(n):
+                    t = res[i, p] * inv_s
                     f = 1.0 + t * t
-                    if prod > 1e150 or f > 1e150:  # the product stays below 1e300
-                        acc += math.log(prod)
-                        prod = f
+                    if acc2[p] > 1e150 or f > 1e150:  # the product stays below 1e300
+                        acc[p] += math.log(acc2[p])
+                        acc2[p] = f
                     else:
-                        prod *= f
-                ll_prod[r, p] = prod
-            else:  # noise.logpdf element by element (Scaled: base.logpdf(r / k) - ln k)
-                for i in range(k):
-                    j = used[i]
-                    acc += (_logpdf(resid[j] / scale[r, j], noise_kind, sigma, nu, eps,
-                                    mix_scale, const) - log_scale[r, j])
-            ll[r, p] = acc
+                        acc2[p] *= f
+            for p in range(n):
+                ll[r, p] = acc[p]
+                ll_prod[r, p] = acc2[p]
+        else:  # noise.logpdf element by element (Scaled: base.logpdf(r / k) - ln k)
+            for i in range(k):
+                sc, ls = scc[i], lsc[i]
+                if mode == 3:  # a scaled Gaussian: _logpdf's terms in its order
+                    for p in range(n):
+                        t = res[i, p] / sc / sigma
+                        acc[p] += -0.5 * t * t - log_sigma - half_log_2pi - ls
+                else:
+                    for p in range(n):
+                        acc[p] += (_logpdf(res[i, p] / sc, noise_kind, sigma, nu, eps,
+                                           mix_scale, const) - ls)
+            for p in range(n):
+                ll[r, p] = acc[p]
+        for p in range(n):
+            for i in range(d):
+                x[r, p, i] = xt[i, p]
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")
