@@ -91,3 +91,24 @@ def test_per_satellite_sigma_equals_scalar_when_uniform_and_holds_p_fa_when_not(
     assert stats.binomtest(k_ok, nis_ok.size, 0.01).pvalue > 1e-3, k_ok
     k_bad = int(np.sum(nis_bad > common.threshold[1:]))
     assert k_bad > 10 * k_ok + 50
+
+
+def test_protected_run_resumed_from_the_plain_run_equals_a_run_from_the_start():
+    """``resume``: a protected run takes the plain run's outputs and state up to its first
+    exclusion and goes on from there; every output equals a protected run from the
+    start, and a ``resume`` of other inputs is ignored."""
+    d, _, pr = _runs("student-t", 3, 4)
+    pr[:, 150:, 0] += 60.0  # a step on one satellite: exclusions from t = 150 s
+    args = (d.pos_sv_ecef_m, pr, d.used, d.t_s, d.sys_idx, 1, d.noise.std_m, ProcessModel(),
+            1e-3)
+    plain = run_ekf(*args, exclude=False)
+    assert plain.resume is not None and 0 < plain.resume.k_div < d.n_epochs
+    alone = run_ekf(*args, exclude=True)
+    resumed = run_ekf(*args, exclude=True, resume=plain.resume)
+    other = run_ekf(*args, exclude=True, resume=run_ekf(args[0], pr + 1.0, *args[2:],
+                                                          exclude=False).resume)
+    assert alone.excluded.any()
+    for run in (resumed, other):
+        for f in ("estimate", "nis", "norm_innov", "alarm", "worst", "excluded",
+                  "clock_jump_m"):
+            np.testing.assert_array_equal(getattr(run, f), getattr(alone, f), err_msg=f)

@@ -68,6 +68,8 @@ class EkfRun:
     clock_jump_m : (R, E, q) receiver clock jumps detected and absorbed (m, per system;
         0 where none; at a flagged restart the common-mode innovation, whatever its size).
     reset : (E,) bool, the epochs at which a flagged clock restart was applied.
+    resume : of a plain run (``exclude=False``): what a protected run of the same inputs
+        takes over (``run_ekf(..., exclude=True, resume=...)``); None otherwise.
     """
 
     estimate: np.ndarray
@@ -80,6 +82,7 @@ class EkfRun:
     available: np.ndarray
     clock_jump_m: np.ndarray
     reset: np.ndarray
+    resume: PlainRun | None = None
 
 
 def _transition(model: ProcessModel, dt_s: float):
@@ -98,10 +101,34 @@ def _transition(model: ProcessModel, dt_s: float):
     return f, q
 
 
+@dataclass(frozen=True)
+class PlainRun:
+    """What a protected run needs of the plain run of the same inputs (see :func:`run_ekf`).
+
+    key : :func:`_fingerprint` of the inputs.
+    k_div : the first epoch at which the protected run excludes a satellite (``E``: none).
+    before : the outputs ``estimate, nis, norm_innov, worst, clock_jump_m`` of the epochs
+        before ``k_div``.
+    state : ``(x, P, jumped, k_prev)`` at the start of epoch ``k_div`` (None if none).
+    """
+
+    key: tuple
+    k_div: int
+    before: tuple
+    state: tuple | None
+
+
+def _fingerprint(*values) -> tuple:
+    """A key equal only for bit-identical inputs: each array as its shape, type and bytes,
+    anything else as itself."""
+    return tuple((v.shape, v.dtype.str, np.ascontiguousarray(v).tobytes())
+                 if isinstance(v, np.ndarray) else v for v in values)
+
+
 def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
             model: ProcessModel, p_fa: float, *, exclude: bool,
             init_inflate: float = 3.0, jump_m: float = CLOCK_JUMP_M, clock_reset=None,
-            reset_drift: bool = True) -> EkfRun:
+            reset_drift: bool = True, resume: PlainRun | None = None) -> EkfRun:
     """Run the EKF and its innovation test over every epoch.
 
     Parameters
@@ -132,6 +159,13 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
     too few satellites only predict. A clock jump at two available epochs in a row is a
     wrong drift (a reset, or a jump between the first two epochs): the drift is corrected
     by the second jump / dt and its variance restarted.
+
+    Until its first exclusion a protected run (``exclude=True``) is the plain run's
+    computation: given ``resume``, the ``resume`` of a plain run of the same inputs (as the
+    ``ekf`` algorithm runs the two, :mod:`raimcore.algorithms.ekf_nis`), it takes that run's
+    outputs up to the first epoch at which the protected filter would exclude a satellite
+    and its state there, and goes on from it. The inputs are compared bit for bit
+    (:func:`_fingerprint`): a ``resume`` of other inputs is not used.
     """
     sv = np.asarray(pos_sv_ecef_m, dtype=float)
     pr = np.asarray(pr_m, dtype=float)
@@ -200,28 +234,54 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
     est[:, k0] = x
     eye = np.eye(d)
     ck = np.asarray(sys_idx, dtype=int)
-    jumped = np.zeros((r_n, n_sys), dtype=bool)  # a jump at the previous available epoch
+    clocks = model.clocks
+    prz = np.nan_to_num(pr)
+    sats = np.arange(s_n)
+    cc_used = np.where(used[:, :, None], cc, 0.0)  # (E, S, q): H's clock columns
+    no_jump = np.zeros((r_n, n_sys))
+    no_hit = np.zeros((r_n, n_sys), dtype=bool)
+    transitions = {}  # F, F^T, Q by time step: computed once per distinct step
+    jumped = no_hit  # a jump at the previous available epoch
     k_prev = k0
-    for k in range(k0 + 1, e_n):
-        f, q = _transition(model, t_s[k] - t_s[k - 1])
-        x = x @ f.T
-        p = f @ p @ f.T + q
+    start = k0 + 1
+    # A protected run goes on from the plain run of the same inputs (see the docstring).
+    memo = resume if exclude else None
+    track = not exclude
+    key = (_fingerprint(sv, pr, used, t_s, ck, n_sys, var, model, p_fa, init_inflate, jump_m,
+                        reset_at, reset_drift) if track or memo is not None else None)
+    if memo is not None and memo.key == key:
+        start = memo.k_div
+        for out, kept in zip((est, nis, norm_innov, worst, jumps), memo.before, strict=True):
+            out[:, :start] = kept
+        if start < e_n:
+            x, p, jumped = (v.copy() for v in memo.state[:3])
+            k_prev = memo.state[3]
+    k_div, state = e_n, None
+    for k in range(start, e_n):
+        state_k = (x, p, jumped, k_prev)  # not modified in place below: rebound
+        dt = t_s[k] - t_s[k - 1]
+        if dt not in transitions:
+            f, q = _transition(model, dt)
+            transitions[dt] = f, f.T, q
+        f, ft, q = transitions[dt]
+        x = x @ ft
+        p = f @ p @ ft + q
         if not available[k]:
             est[:, k] = x
             continue
         dvec = sv[k][None] - x[:, None, :3]
         rng_m = np.linalg.norm(dvec, axis=-1)
+        u = np.broadcast_to(used[k], (r_n, s_n))
         h = np.zeros((r_n, s_n, d))
-        h[..., :3] = -dvec / rng_m[..., None]
-        h[..., model.clocks] = cc
-        u = used[k][None, :] & np.ones((r_n, 1), bool)
-        nu = np.where(u, np.nan_to_num(pr[:, k]) - rng_m - x[:, model.clocks] @ cc.T, 0.0)
+        h[..., :3] = np.where(u[..., None], -dvec / rng_m[..., None], 0.0)
+        h[..., clocks] = cc_used[k]
+        nu = np.where(u, prz[:, k] - rng_m - x[:, clocks] @ cc.T, 0.0)
         if reset_at[k]:
             # The receiver says its clock restarted: new offsets, centred on the
             # common-mode innovation, diffuse and independent of the rest of the state.
             jump = clock_jump(nu, u, ck, n_sys, 0.0)  # (R, q), every system's median
             jumps[:, k] = jump
-            x[:, model.clocks] += jump
+            x[:, clocks] += jump
             nu = np.where(u, nu - jump @ cc.T, 0.0)
             free = np.arange(model.clk0, model.clk0 + n_sys)
             if model.has_drift and reset_drift:
@@ -230,16 +290,18 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
             p[:, :, free] = 0.0
             p[:, free, free] = np.where(free == model.drift, CLOCK_RESET_DRIFT_SD_MPS**2,
                                         CLOCK_RESET_SD_M**2)
-            hit = np.zeros((r_n, n_sys), dtype=bool)  # no evidence of a wrong drift
-        else:
+            hit = no_hit  # no evidence of a wrong drift
+        elif (u & (np.abs(nu) > jump_m)).any():
             # A receiver clock jump: re-initialise the offset from the common-mode
-            # innovation.
+            # innovation (no innovation above jump_m: no median above it, no jump).
             jump = clock_jump(nu, u, ck, n_sys, jump_m)  # (R, q)
             hit = jump != 0.0
+        else:
+            jump, hit = no_jump, no_hit
         if hit.any():
             jumps[:, k] = jump
             vj = jump_variance(np.where(u, 1.0 / var[k], 0.0), ck, n_sys) * init_inflate**2
-            x[:, model.clocks] += jump
+            x[:, clocks] += jump
             nu = np.where(u, nu - jump @ cc.T, 0.0)
             diag = np.arange(model.clk0, model.clk0 + n_sys)
             p[:, diag, diag] += np.where(hit, vj, 0.0)
@@ -259,29 +321,38 @@ def run_ekf(pos_sv_ecef_m, pr_m, used, t_s, sys_idx, n_sys: int, sigma_m,
                                                     vj.max(-1)[restart] / dt_a**2)
         jumped = hit
         k_prev = k
-        h = np.where(u[..., None], h, 0.0)
-        s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.diag(var[k])
+        ht = np.swapaxes(h, -1, -2)
+        s_mat = h @ p @ ht + np.diag(var[k])
         s_inv = np.linalg.inv(s_mat)
         nis[:, k] = np.einsum("rs,rst,rt->r", nu, s_inv, nu)
         ni = np.abs(nu) / np.sqrt(np.diagonal(s_mat, axis1=1, axis2=2))
         norm_innov[:, k] = np.where(u, ni, np.nan)
         worst[:, k] = np.argmax(np.where(u, ni, -1.0), axis=-1)
-        if exclude:
-            drop = (nis[:, k] > threshold[k])[:, None] & (np.arange(s_n) == worst[:, k:k + 1])
-            # An exclusion must leave m >= n for the update.
-            drop &= (u.sum(-1) - 1 >= n_states[k])[:, None]
-            excluded[:, k] = drop
-            u = u & ~drop
-            nu = np.where(u, nu, 0.0)
-            h = np.where(u[..., None], h, 0.0)
-            s_mat = h @ p @ np.swapaxes(h, -1, -2) + np.diag(var[k])
-            s_inv = np.linalg.inv(s_mat)
-        gain = p @ np.swapaxes(h, -1, -2) @ s_inv
+        if exclude or (track and state is None):
+            # An alarm excludes a satellite if that leaves m >= n for the update.
+            alarmed = (nis[:, k] > threshold[k]) & (u.sum(-1) - 1 >= n_states[k])
+            if alarmed.any() and not exclude:
+                k_div, state = k, state_k  # where a protected run first excludes
+            elif alarmed.any():
+                drop = alarmed[:, None] & (sats == worst[:, k:k + 1])
+                excluded[:, k] = drop
+                u = u & ~drop
+                nu = np.where(u, nu, 0.0)
+                h = np.where(u[..., None], h, 0.0)
+                ht = np.swapaxes(h, -1, -2)
+                s_mat = h @ p @ ht + np.diag(var[k])
+                s_inv = np.linalg.inv(s_mat)
+        gain = p @ ht @ s_inv
         x = x + np.einsum("rds,rs->rd", gain, nu)
         ikh = eye - gain @ h
         # Joseph form keeps P symmetric positive definite.
         p = ikh @ p @ np.swapaxes(ikh, -1, -2) + (gain * var[k]) @ np.swapaxes(gain, -1, -2)
         est[:, k] = x
+    plain = None
+    if not exclude:
+        plain = PlainRun(
+            key, k_div, tuple(a[:, :k_div].copy() for a in (est, nis, norm_innov, worst, jumps)),
+            None if state is None else tuple(v.copy() for v in state[:3]) + (state[3],))
     alarm = available[None] & (nis > threshold[None])
     return EkfRun(est, nis, threshold, norm_innov, alarm, worst, excluded, available, jumps,
-                  reset_at)
+                  reset_at, plain)

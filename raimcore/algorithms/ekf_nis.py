@@ -68,7 +68,7 @@ def run(data: Measurements, options: dict) -> AlgorithmOutput:
     args = (data.pos_sv_ecef_m, data.pr_m[None], data.used, data.t_s, data.sys_idx,
             len(data.systems), sigma, model, data.p_fa)
     plain = run_ekf(*args, exclude=False, clock_reset=data.clock_reset)
-    prot = run_ekf(*args, exclude=True, clock_reset=data.clock_reset)
+    prot = run_ekf(*args, exclude=True, clock_reset=data.clock_reset, resume=plain.resume)
     avail = prot.available
     k0 = np.flatnonzero(avail)[:1]
     armed = avail.copy()
