@@ -17,7 +17,7 @@ it fast: no large temporaries (the solve works on blocks of 8192 groups), produc
 that BLAS never starts threads (they only spun against the other workers of a process
 pool), GF's group statistics reused by QV on the same runs, and RS growing its consistent
 set by adding one satellite's terms to the set's normal-equation sums instead of solving
-the whole set again.
+the whole set again, every step of a run up to its next failure at once (running sums).
 
 * :func:`select_groups` - the ``L1 = floor(L / K)`` groups at equal spacing ``K`` in the
   lexicographic list of all ``L = C(N, r)`` groups (seed 004 eqs. 1-2).
@@ -194,8 +194,9 @@ def _same(a, b) -> bool:
     return a.shape == b.shape and a.dtype == b.dtype and np.array_equal(a, b)
 
 
-def _group_chi2_memo(h, y, groups, p_fa: float, weights) -> GroupStats:
-    """:func:`group_chi2`, remembering the last answer.
+def _group_chi2_memo(h, y, groups, p_fa: float, weights, member=None) -> GroupStats:
+    """:func:`group_chi2`, remembering the last answer (``member``: the groups' float
+    :func:`membership_matrix` if the caller has it, else built here).
 
     GF and QV test the same groups on the same runs (a Monte Carlo chunk runs both on the
     same ``h``, ``y``), so the second asks for exactly the statistics the first computed.
@@ -212,7 +213,9 @@ def _group_chi2_memo(h, y, groups, p_fa: float, weights) -> GroupStats:
     if (m is not None and m[3] == p_fa and _same(m[0], h) and _same(m[1], y)
             and _same(m[2], groups) and _same(m[4], w)):
         return m[5]
-    stats = group_chi2(h, y, groups, p_fa, w)
+    if member is None:
+        member = membership_matrix(groups, y.shape[-1]).astype(float)
+    stats = _chi2_members(h, y, member, p_fa, w)
     if stats.theta.size <= _MEMO_MAX:
         for v in vars(stats).values():
             v.flags.writeable = False
@@ -268,6 +271,9 @@ _IU = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 #: batch through memory once per arithmetic operation.
 _BLOCK = 8192
 
+#: Most rows of one product of :func:`_matmul_rows`.
+_TILE_ROWS = 96
+
 
 def _features(h, y, w):
     """Per-satellite terms of the normal equations, ``(F, ..., N)``, ``F = 10 + 5 q``.
@@ -292,20 +298,27 @@ def _features(h, y, w):
 
 
 def _matmul_rows(a, b):
-    """``a (..., K) @ b (K, P)`` in blocks of rows small enough that BLAS keeps each on one
+    """``a (..., K) @ b (K, P)`` in tiles small enough that BLAS keeps each product on one
     thread (OpenBLAS threads a product once ``m n k`` exceeds about 2^18).
 
     Threads do not pay on products this thin (K and P are tens to hundreds), and in a
     process pool of one worker per core their spin-waiting takes the other workers' cores:
     unblocked, the two products of :func:`fuse` took a third of a Monte Carlo chunk's CPU
-    time.
+    time. A tile is up to :data:`_TILE_ROWS` rows of ``a`` by as many columns of ``b`` as
+    keep ``m n k`` under that bound: BLAS packs both operands of every product, and blocks
+    of a few rows by all ``P`` columns (``b`` packed again for every handful of rows) spent
+    more time packing than multiplying.
     """
     k, p = b.shape
     flat = np.ascontiguousarray(a).reshape(-1, k)
-    out = np.empty((flat.shape[0], p))
-    rows = max(1, (1 << 18) // max(k * p, 1))
-    for i in range(0, flat.shape[0], rows):
-        np.matmul(flat[i:i + rows], b, out=out[i:i + rows])
+    m = flat.shape[0]
+    out = np.empty((m, p))
+    per_product = max(1, (1 << 18) // max(k, 1))  # output elements of one product
+    rows = max(1, min(m, _TILE_ROWS, per_product))
+    cols = max(1, per_product // rows)
+    for i in range(0, m, rows):
+        for j in range(0, p, cols):
+            np.matmul(flat[i:i + rows], b[:, j:j + cols], out=out[i:i + rows, j:j + cols])
     return out.reshape(a.shape[:-1] + (p,))
 
 
@@ -618,11 +631,12 @@ def gf_isolate(h, y, groups, p_fa: float, *, weights_lsq=None, margin: float = 0
     GFResult
     """
     _check_common(p_fa, margin, weights)
+    member = membership_matrix(np.asarray(groups), np.shape(y)[-1]).astype(float)
     stats = (group_chi2(h, y, groups, p_fa, weights_lsq, reference=True) if reference
-             else _group_chi2_memo(h, y, groups, p_fa, weights_lsq))
+             else _group_chi2_memo(h, y, groups, p_fa, weights_lsq, member))
     m_f = basic_belief(stats.theta, stats.dof, p_fa)
     alpha = _alpha(stats, weights)
-    fused = fuse(m_f, alpha, membership_matrix(groups, np.shape(y)[-1]))
+    fused = fuse(m_f, alpha, member)
     iso, thr = adaptive_isolation(fused, margin)
     return GFResult(fused, thr, iso, stats, m_f)
 
@@ -692,7 +706,8 @@ def rs_isolate(h, y, p_fa: float, rng: np.random.Generator, *, weights_lsq=None,
 
     The chi-square of a set grown by one satellite comes from the set's normal-equation
     sums plus that satellite's terms (the closed-form solve of :func:`_chi2_members`), not
-    from a new solve of the whole set.
+    from a new solve of the whole set; the steps up to a run's next failure are tested
+    together (:func:`_grow_sets`).
 
     Parameters
     ----------
@@ -741,16 +756,56 @@ def rs_isolate(h, y, p_fa: float, rng: np.random.Generator, *, weights_lsq=None,
     order = np.argsort(np.where(consistent, np.inf, rng.random((b, n))), axis=-1)
     set_sums = np.ascontiguousarray(sums[:, rows, first])  # (F, B) of the consistent sets
     n_set = np.full(b, size)
-    for step in range(n - size):  # one satellite per run per step, all runs at once
-        j = order[:, step]
-        trial = set_sums + feats[:, rows, j]
-        stat, _, regular, n_sys = _solve_sums(trial, q)
-        dof = n_set + 1 - 3 - n_sys
-        fail = regular & (stat > _thresholds(dof, p_fa))
-        isolated[rows, j] = fail
-        set_sums = np.where(fail, set_sums, trial)
-        n_set += ~fail
+    steps = n - size
+    added = order[:, :steps]  # (B, steps) the satellite each step adds, per run
+    step_feats = feats[:, rows[:, None], added]  # (F, B, steps)
+    table = special.chdtri(np.arange(1, n + 1), p_fa)  # T by dof (eq. 7)
+    isolated[rows[:, None], added] = _grow_sets(set_sums, n_set, step_feats, q, table)
     return isolated
+
+
+def _grow_sets(set_sums, n_set, step_feats, q, table):
+    """RS's growing of the consistent sets: which added satellites fail, ``(B, S)`` bool.
+
+    Parameters
+    ----------
+    set_sums : (F, B) normal-equation sums of each run's consistent set (modified).
+    n_set : (B,) its number of satellites.
+    step_feats : (F, B, S) the terms (:func:`_features`) of the satellite step s adds.
+    q : number of clocks; table : chi-square thresholds by dof (``table[dof - 1]``).
+
+    Step s tests the set plus its satellite; the satellite joins unless the test fails.
+    Until a satellite fails, the sums of each step's trial are the running sums of the set
+    and the satellites so far, a cumulative sum (the same additions in the same order as
+    one step at a time), so every remaining step of every run is tested at once; a run
+    with a failure takes up again after the first one, from the sums before it. At most a
+    pass per failure of the run with the most, plus one (fault-free runs: one pass).
+    """
+    f_n, b, steps = step_feats.shape
+    fails = np.zeros((b, steps), dtype=bool)
+    start = np.zeros(b, dtype=np.intp)  # each run's first step not decided yet
+    n_set = np.array(n_set)
+    runs = np.arange(b)
+    while runs.size and steps:
+        pos = np.arange(steps - start[runs].min())
+        step = start[runs, None] + pos  # (R, L); past a run's last step: padding
+        valid = step < steps
+        terms = step_feats[:, runs[:, None], np.minimum(step, steps - 1)]  # (F, R, L)
+        running = np.concatenate([set_sums[:, runs, None], terms], axis=-1)
+        np.cumsum(running, axis=-1, out=running)  # [..., l + 1]: the trial of step l
+        stat, _, regular, n_sys = (v.reshape(step.shape) for v in _solve_sums(
+            running[..., 1:].reshape(f_n, -1), q))
+        dof = n_set[runs, None] + pos + 1 - 3 - n_sys  # (clipped: padding goes beyond)
+        fail = valid & regular & (stat > table[np.clip(dof, 1, len(table)) - 1])
+        hit = fail.any(axis=-1)
+        first = np.argmax(fail, axis=-1)[hit]  # the first failing step of a run, if any
+        again = runs[hit]
+        fails[again, start[again] + first] = True
+        set_sums[:, again] = running[:, np.flatnonzero(hit), first]  # the sums before it
+        n_set[again] += first
+        start[again] += first + 1
+        runs = again[start[again] < steps]
+    return fails
 
 
 def _rs_isolate_reference(h, y, p_fa, rng, weights_lsq, n_draws, size):
@@ -799,15 +854,15 @@ def qv_isolate(h, y, groups, p_fa: float, *, weights_lsq=None, margin: float = 0
     """
     check_probability("p_fa", p_fa)
     check_range("margin", margin, 0.0, 1.0)
+    member = membership_matrix(np.asarray(groups), np.shape(y)[-1]).astype(float)
     st = (group_chi2(h, y, groups, p_fa, weights_lsq, reference=True) if reference
-          else _group_chi2_memo(h, y, groups, p_fa, weights_lsq))
+          else _group_chi2_memo(h, y, groups, p_fa, weights_lsq, member))
     fail = np.where(st.ok, (st.theta > st.threshold).astype(float), 0.0)
     check_choice("norm", norm, ("max", "share"))
-    member = membership_matrix(groups, np.shape(y)[-1])
     if norm == "share":
         score = fuse(fail, st.ok.astype(float), member)
     else:
-        total = fail @ member.astype(float)
+        total = fail @ member
         top = total.max(axis=-1, keepdims=True)
         score = np.where(top > 0, total / np.where(top > 0, top, 1.0), 0.0)
     iso, thr = adaptive_isolation(score, margin)
