@@ -22,8 +22,10 @@ __all__ = ["mhss", "MhssResult", "FaultModes"]
 FDE_CONST_P_MIN = 1e-7
 #: Epochs whose key rows are built at once when grouping (memory bound, not a result).
 _KEY_CHUNK = 32768
-#: Bound on the elements of one (epochs x modes x 3 x satellites) working array.
-_WORK_ELEMENTS = 4_000_000
+#: Bound on the elements of one (epochs x modes x 3 x satellites) working array (64 MB):
+#: larger chunks mean fewer calls and less per-call overhead (four-system recording, 2 h:
+#: 4M 3.50 s, 8M 3.14 s, 16M 3.02 s), at the price of the peak memory.
+_WORK_ELEMENTS = 8_000_000
 _REASONS = np.array(["", "too_few_satellites", "singular_geometry"])
 
 
