@@ -674,7 +674,7 @@ def test_ctrl_c_during_monte_carlo_ends_with_one_line(workers, tmp_path):
         time.sleep(2.0)  # well inside the study (it takes minutes)
         p.send_signal(signal.SIGINT)  # to the main process only, as `kill -INT` would
         out, err = p.communicate(timeout=30)
-        assert p.returncode == 130
+        assert p.returncode == 130, err
         assert "Traceback" not in err
         assert err.strip().splitlines() == ["raim: interrupted"]
         deadline = time.monotonic() + 5.0
