@@ -14,7 +14,7 @@ import numpy as np
 from .._validate import check_array, check_batch
 from . import _kernel_reference, _params
 from .kernel import evaluate, pl_bisect
-from .modes import ModeList, determine_modes, restrict_modes
+from .modes import ModeList, determine_modes, mode_keys, restrict_modes
 
 __all__ = ["mhss", "MhssResult", "FaultModes"]
 
@@ -468,11 +468,12 @@ def _candidate_plan(pat: _Pattern, modes: ModeList, cands) -> _CandidatePlan:
     compacted lists so that each group runs as one batched :func:`evaluate`."""
     by_key: dict[bytes, list] = {}
     too_few = np.zeros(len(cands), bool)
+    keys = mode_keys(modes.removed)  # once: each candidate's cut keys are keys & mask
     for ci, (_, _, keep) in enumerate(cands):
         if keep.sum() <= 3:
             too_few[ci] = True
             continue
-        mc = restrict_modes(modes, keep)
+        mc = restrict_modes(modes, keep, keys=keys)
         pc_left = np.unique(pat.cons[keep])
         cmap = np.full(len(pat.pc), -1)
         cmap[pc_left] = np.arange(len(pc_left))

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ModeList", "p_at_least", "determine_modes", "restrict_modes"]
+__all__ = ["ModeList", "p_at_least", "determine_modes", "restrict_modes", "mode_keys"]
 
 
 @dataclass(frozen=True)
@@ -96,32 +96,51 @@ def _combos(n_events: int, sizes) -> list[np.ndarray]:
 _KEY_BITS = 62
 
 
-def _row_groups(removed, reference: bool = False):
-    """``first`` and ``inverse`` of ``np.unique(removed, axis=0)`` (bool ``(K, n)``),
-    through 64-bit keys when ``n <= 62`` (``reference``: always row-wise)."""
+def mode_keys(removed):
+    """(K,) int64: bit ``i`` of row ``k`` set where mode ``k`` removes satellite ``i``
+    (equal keys, equal removed sets), or None where ``n > 62``."""
     k, n = removed.shape
-    if reference or n > _KEY_BITS or k == 0:
+    if n > _KEY_BITS:
+        return None
+    bits = np.int64(1) << np.arange(n, dtype=np.int64)
+    return np.bitwise_or.reduce(np.where(removed, bits, np.int64(0)), axis=1,
+                                initial=np.int64(0))
+
+
+def _row_groups(removed, reference: bool = False, keys=None):
+    """``first`` and ``inverse`` of ``np.unique(removed, axis=0)`` (bool ``(K, n)``),
+    through 64-bit keys (:func:`mode_keys`, or ``keys`` if given) when ``n <= 62``
+    (``reference``: always row-wise)."""
+    k, n = removed.shape
+    if keys is None and not reference:
+        keys = mode_keys(removed)
+    if reference or keys is None or k == 0:
         _, first, inverse = np.unique(removed, axis=0, return_index=True,
                                       return_inverse=True)
         return first, inverse.reshape(-1)
-    keys = removed.astype(np.int64) @ (np.int64(1) << np.arange(n, dtype=np.int64))
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     return first, inverse.reshape(-1)
 
 
-def _merge(removed, consts, p_inst, p_exp, reference: bool = False):
+def _merge(removed, consts, p_inst, p_exp, reference: bool = False, keys=None):
     """Merge modes with identical removed sets: keep the first, sum the probabilities
-    (``find_unique_subsets.m``, section 4 step 7)."""
-    first, inverse = _row_groups(removed, reference)
+    (``find_unique_subsets.m``, section 4 step 7). ``keys``: the rows' :func:`mode_keys`
+    if the caller has them. The sums add the members in row order (``np.add.at``, or
+    ``np.bincount``, which adds in the same order)."""
+    first, inverse = _row_groups(removed, reference, keys)
     order = np.argsort(first, kind="stable")  # unique rows in order of first appearance
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     grp = rank[inverse]
     k = len(order)
-    pi = np.zeros(k)
-    pe = np.zeros(k)
-    np.add.at(pi, grp, p_inst)
-    np.add.at(pe, grp, p_exp)
+    if reference:
+        pi = np.zeros(k)
+        pe = np.zeros(k)
+        np.add.at(pi, grp, p_inst)
+        np.add.at(pe, grp, p_exp)
+    else:
+        pi = np.bincount(grp, weights=p_inst, minlength=k)
+        pe = np.bincount(grp, weights=p_exp, minlength=k)
     keep = first[order]
     return removed[keep], consts[keep], pi, pe
 
@@ -266,16 +285,23 @@ def _determine_b2012(n, c, member, p_sat, p_const, p_thres_sat, p_thres_const,
     return ModeList(removed, consts, p_inst, p_exp, p_nm, (n_sat_max, n_const_max))
 
 
-def restrict_modes(modes: ModeList, keep, *, reference: bool = False) -> ModeList:
+def restrict_modes(modes: ModeList, keep, *, reference: bool = False,
+                   keys=None) -> ModeList:
     """The mode list seen by an exclusion candidate that keeps the satellites ``keep``.
 
     Each mode's removed set is cut to the kept satellites (columns ``keep``); modes that
     then remove nothing merge into the fault-free row, identical ones merge (their
     probabilities add); ``p_nm`` is kept (ARAIM.md section 9, ``usr_vhpl_araim.m``; the
     kernel uses the all-in-view's final ``P_nm``, after unmonitorable modes are dropped).
-    ``reference``: merge row by row (see :func:`determine_modes`).
+    ``reference``: merge row by row (see :func:`determine_modes`). ``keys``: the
+    :func:`mode_keys` of ``modes.removed``, for a caller restricting one list many times
+    (the cut sets' keys are then ``keys & mask``, not recomputed).
     """
     keep = np.asarray(keep, dtype=bool)
     removed = modes.removed[:, keep]
-    r, cst, pi, pe = _merge(removed, modes.consts, modes.p_inst, modes.p_exp, reference)
+    cut = None
+    if keys is not None and not reference:
+        cut = keys & (np.int64(1) << np.flatnonzero(keep).astype(np.int64)).sum()
+    r, cst, pi, pe = _merge(removed, modes.consts, modes.p_inst, modes.p_exp, reference,
+                            cut)
     return ModeList(r, cst, pi, pe, modes.p_nm, modes.n_max)
