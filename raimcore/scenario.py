@@ -358,8 +358,9 @@ class Scenario:
                                parse=_parse_paths, allowed_text="path or list of paths",
                                group="recording")
     signals: tuple[str, ...] = key((), "observation codes to use, e.g. [\"C1C\", \"C2I\"] "
-                                   "(empty: the defaults)", kind="strings",
-                                   group="recording")
+                                   "(empty: the defaults; each corrected with its own "
+                                   "broadcast group delay, or a note where the records "
+                                   "carry none)", kind="strings", group="recording")
     truth_ecef_m: tuple[float, ...] = key((), "true receiver position [x, y, z] of a "
                                           "recording (empty: the header position)",
                                           unit="m", kind="custom", parse=_parse_truth,

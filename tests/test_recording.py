@@ -577,3 +577,52 @@ def test_recording_doctests():
 
     res = doctest.testmod(recording)
     assert res.attempted >= 1 and res.failed == 0
+
+
+def test_group_delay_of_each_signal_follows_the_icds():
+    from raimcore.constants import F_E5B_HZ, F_L1_HZ, F_L2_HZ
+    from raimcore.sky.spp import group_delay_s
+
+    tgd, tgd2 = np.array([-1.2e-8, 4e-9]), np.array([3e-9, np.nan])
+    for letter, code, want in (("G", "C1C", tgd), ("G", "C2W", (F_L1_HZ / F_L2_HZ) ** 2 * tgd),
+                               ("C", "C2I", tgd), ("C", "C1I", tgd), ("C", "C7I", [3e-9, 0.0]),
+                               ("C", "C6I", [0.0, 0.0]), ("E", "C1C", tgd),
+                               ("E", "C7Q", (F_L1_HZ / F_E5B_HZ) ** 2 * np.array([3e-9, 0.0])),
+                               ("R", "C1C", tgd)):
+        got, note = group_delay_s(letter, code, tgd, tgd2)
+        np.testing.assert_allclose(got, want, rtol=1e-15, atol=0, err_msg=code)
+        assert (note is None) == (code not in ("C7I", "C7Q")), code  # the missing TGD2
+    for letter, code in (("G", "C5Q"), ("C", "C1P"), ("C", "C5X"), ("E", "C5Q"), ("E", "C6C"),
+                         ("R", "C2P")):
+        got, note = group_delay_s(letter, code, tgd, tgd2)
+        np.testing.assert_array_equal(got, tgd)
+        assert "no broadcast group delay" in note
+
+
+@pytest.mark.parametrize("system, code", [("GPS", "C2W"), ("BDS", "C7I"), ("BDS", "C6I"),
+                                          ("GAL", "C7Q")])
+def test_a_signals_own_group_delay_aligns_the_satellites_of_a_real_recording(esbc, system,
+                                                                             code):
+    """ESBC at its surveyed position: each satellite's mean residual (after the epoch's
+    common clock) spreads less with the signal's own broadcast group delay than with the
+    default signal's (what was applied before): GPS L2 1.47 -> 1.22 m, BDS B2I 1.13 ->
+    0.84 m, B3I 2.81 -> 1.48 m, Galileo E5b 3.62 -> 1.04 m."""
+    from raimcore.sky import spp as spp_module
+
+    obs, nav = read_obs(esbc[0]), read_nav(esbc[1], systems="GCER")
+    rx = obs.approx_pos_ecef_m
+    c = spp_module.correct(obs, nav, (system,), (code,), rx_ecef_m=rx)
+    eph, _ = spp_module.from_nav(nav).select(c.sat_names, c.t_gps_s)
+    own, _ = spp_module.group_delay_s(spp_module.ALL_SYSTEM_LETTER[system], code,
+                                      eph.tgd_s, eph.tgd2_s)
+    rng = np.linalg.norm(c.pos_sv_ecef_m - rx, axis=-1)
+
+    def spread(clock_m):
+        res = c.pr_raw_m + clock_m - rng - c.iono_m - c.tropo_m
+        res = res - np.nanmedian(res, axis=1, keepdims=True)
+        per = np.nanmean(res, axis=0)
+        return np.std(per[np.isfinite(per)])
+
+    default = spread(c.clock_m + spp_module.C_MPS * (own - eph.tgd_s))
+    assert spread(c.clock_m) < 0.9 * default
+    assert not any("group delay" in n for n in c.notes)

@@ -134,7 +134,10 @@ class Ephemerides:
 
     ``tgd_s`` is the group delay of the signal used: the L1 C/A (GPS TGD), B1I (BDS TGD1)
     or E1 (Galileo BGD(E1, E5b) for an I/NAV record, BGD(E1, E5a) for an F/NAV one); 0 for
-    GLONASS (tau_n refers to L1). ``healthy`` is bool: the fields the orbit and clock need
+    GLONASS (tau_n refers to L1). ``tgd2_s`` is the record's second group delay field:
+    BDS TGD2 (B2I), Galileo BGD(E1, E5b); NaN for GPS (that field is the IODC) and
+    GLONASS (see :func:`raimcore.sky.spp.group_delay_s` for other signals).
+    ``healthy`` is bool: the fields the orbit and clock need
     are present and the health flags of the signal are 0 (see :func:`from_nav`).
 
     ``ura_m`` (B,) is the broadcast accuracy (m): the GPS URA and BeiDou URA as RINEX
@@ -170,6 +173,7 @@ class Ephemerides:
     omega_dot: np.ndarray
     idot: np.ndarray
     tgd_s: np.ndarray
+    tgd2_s: np.ndarray
     healthy: np.ndarray
     ura_m: np.ndarray
     fcn: np.ndarray
@@ -336,7 +340,8 @@ def _kepler_part(letter, sats, toc, vals):
         e=col["e"], cus=col["cus"], sqrt_a=col["sqrt_a"], cic=col["cic"],
         omega0=col["omega0"], cis=col["cis"], i0=col["i0"], crc=col["crc"],
         omega=col["omega"], omega_dot=col["omega_dot"], idot=col["idot"],
-        tgd_s=np.nan_to_num(tgd), healthy=why == "",
+        tgd_s=np.nan_to_num(tgd),
+        tgd2_s=col["bgd_e5b"] if letter in "CE" else np.full(n, np.nan), healthy=why == "",
         ura_m=np.where(np.isfinite(acc) & (acc > 0), acc, np.nan), fcn=np.zeros(n, int),
         pos_glo_m=nan3, vel_glo_mps=nan3, acc_glo_mps2=nan3)
     return {k: v[keep] for k, v in part.items()}, why[keep], extra
@@ -359,7 +364,7 @@ def _glonass_part(sats, toc, vals):
         toc_gps_s=toc, toe_gps_s=toc, toe_sow=nan, af0=col["af0"], af1=col["af1"],
         af2=np.zeros(n), crs=nan, dn=nan, m0=nan, cuc=nan, e=nan, cus=nan, sqrt_a=nan,
         cic=nan, omega0=nan, cis=nan, i0=nan, crc=nan, omega=nan, omega_dot=nan, idot=nan,
-        tgd_s=np.zeros(n), healthy=why == "", ura_m=ura,
+        tgd_s=np.zeros(n), tgd2_s=np.full(n, np.nan), healthy=why == "", ura_m=ura,
         fcn=np.nan_to_num(col["fcn"]).astype(int),
         pos_glo_m=km * np.stack([col["x"], col["y"], col["z"]], axis=-1),
         vel_glo_mps=km * np.stack([col["vx"], col["vy"], col["vz"]], axis=-1),

@@ -52,8 +52,8 @@ from .ephemeris import ephemeris_notes, from_nav, sat_pos_clock
 from .rinex import _GPS_EPOCH, NavFile, ObsFile
 
 __all__ = ["Corrected", "correct", "solve", "spp", "klobuchar", "troposphere",
-           "elevation_sigma", "carrier_hz", "ALL_SYSTEM_LETTER", "SYSTEM_LETTER",
-           "DEFAULT_SIGNALS"]
+           "elevation_sigma", "carrier_hz", "group_delay_s", "ALL_SYSTEM_LETTER",
+           "SYSTEM_LETTER", "DEFAULT_SIGNALS"]
 
 #: Every system :func:`correct` positions with, and the first letter of its satellites:
 #: the one table of the project (``constellations.SYSTEM_PREFIX``, ``scenario.SYSTEMS``).
@@ -181,6 +181,53 @@ class Corrected:
         return np.where(self.tracked & self.usable, pr, np.nan)
 
 
+#: RINEX 3 codes of BeiDou B1I and B2I (B1C, B2a, B2b and B3 share bands 1, 5 and 7).
+_BDS_B1I = ("C2I", "C2Q", "C2X", "C1I", "C1Q")
+_BDS_B2I = ("C7I", "C7Q", "C7X")
+
+
+def group_delay_s(letter: str, code: str, tgd_s, tgd2_s):
+    """The broadcast group delay (s) a single-frequency user of code ``code`` subtracts
+    from the broadcast clock, from the records' ``tgd_s`` (the default signal's, see
+    :class:`~raimcore.sky.ephemeris.Ephemerides`) and ``tgd2_s``; returns ``(delay_s,
+    note)``, ``note`` None where the delay is the signal's own:
+
+    - GPS: L1 (C/A, P(Y)) ``TGD``; L2 ``gamma TGD``, ``gamma = (f_L1 / f_L2)^2``
+      (IS-GPS-200 20.3.3.3.3.2; for L2C the LNAV user's value);
+    - BeiDou: B1I ``TGD1``, B2I ``TGD2``, B3I 0 (the clock refers to B3I; BDS-SIS-ICD
+      B1I 3.0, 5.2.4.10);
+    - Galileo: E1 the record's BGD (I/NAV: BGD(E1, E5b)); E5b
+      ``(f_E1 / f_E5b)^2 BGD(E1, E5b)`` (OS SIS ICD 2.0, 5.1.5);
+    - GLONASS: L1 0 (tau_n refers to L1).
+
+    Any other signal (GPS L5, BeiDou B1C/B2a/B2b, Galileo E5a/E5/E6, GLONASS L2/L3): no
+    group delay of its own in the records read here (CNAV ISCs, F/NAV clocks, Delta tau_n);
+    the default signal's is kept and the note says so (an error of a few ns, about 1 m).
+    A missing ``tgd2_s`` counts 0, said in the note."""
+    band = code[1] if len(code) > 1 else ""
+    tgd = np.asarray(tgd_s, dtype=float)
+    tgd2 = np.asarray(tgd2_s, dtype=float)
+    second = None
+    if (letter in "GER" and band == "1") or (letter == "C" and code in _BDS_B1I):
+        return tgd, None
+    if letter == "G" and band == "2":
+        return (F_L1_HZ / F_L2_HZ) ** 2 * tgd, None
+    if letter == "C" and band == "6":
+        return np.zeros_like(tgd), None
+    if letter == "C" and code in _BDS_B2I:
+        second = tgd2
+    elif letter == "E" and band == "7":
+        second = (F_L1_HZ / F_E5B_HZ) ** 2 * tgd2
+    if second is not None:
+        missing = ~np.isfinite(second)
+        note = (f"{code}: the group delay field is missing in {int(missing.sum())} "
+                "record uses; 0 taken there" if missing.any() else None)
+        return np.where(missing, 0.0, second), note
+    return tgd, (f"{code}: no broadcast group delay for this signal in the records read "
+                 "here; the default signal's is applied (an error of a few ns, ~1 m, per "
+                 "satellite)")
+
+
 def _pick_signal(obs: ObsFile, system: str, signals) -> str:
     letter = ALL_SYSTEM_LETTER[system]
     have = obs.obs_types.get(letter, ())
@@ -274,6 +321,14 @@ def correct(obs: ObsFile, nav: NavFile, systems=("GPS", "BDS"), signals=(),
     _, clk = sat_pos_clock(e_sel, t_tx)
     t_tx = t_tx - clk  # satellite clock (IS-GPS-200 20.3.3.3.3.1: t = t_sv - dt_sv)
     pos, clk = sat_pos_clock(e_sel, t_tx)
+    letters = np.array([n[0] for n in names])
+    for system in used_systems:  # the group delay of the signal used (clk has the default's)
+        cols = letters == ALL_SYSTEM_LETTER[system]
+        delay, note = group_delay_s(ALL_SYSTEM_LETTER[system], chosen[system],
+                                    e_sel.tgd_s[:, cols], e_sel.tgd2_s[:, cols])
+        clk[:, cols] += e_sel.tgd_s[:, cols] - delay
+        if note:
+            notes.append(f"{system} {note}")
     # Earth rotation during the signal travel (Sagnac): rotate by -we * tau about Z.
     ang = OMEGA_E_RADPS * (t[:, None] - t_tx)
     ca, sa = np.cos(ang), np.sin(ang)
@@ -282,7 +337,6 @@ def correct(obs: ObsFile, nav: NavFile, systems=("GPS", "BDS"), signals=(),
     pos = np.where(np.isfinite(pos), pos, 0.0)
     e_n, s_n = pr.shape
     zero = np.zeros((e_n, s_n))
-    letters = np.array([n[0] for n in names])
     freq = np.zeros((e_n, s_n))
     for system in used_systems:
         cols = letters == ALL_SYSTEM_LETTER[system]
