@@ -91,6 +91,11 @@ def test_fit_gauss_markov_recovers_scale_and_correlation_time():
     # A time gap (a missing epoch) breaks the pair instead of counting it as one step.
     t_gap = np.delete(np.arange(11.0), 5)
     assert fit_gauss_markov(np.ones((10, 2)), t_gap).n_pairs == 16
+    # Jittered time tags (a phone's 29.999 / 30.001 s steps) still pair: the same fit.
+    jitter = t + np.random.default_rng(9).uniform(-1e-3, 1e-3, t.shape)
+    fit_j = fit_gauss_markov(x, jitter)
+    assert fit_j.n_pairs == fit.n_pairs and fit_j.rho == fit.rho
+    assert fit_j.corr_s == pytest.approx(fit.corr_s, rel=1e-4)
     with pytest.raises(ValueError, match="errors must be"):
         fit_gauss_markov(np.ones((5, 2)), np.arange(4.0))
 

@@ -313,6 +313,10 @@ class GaussMarkovFit:
     n_pairs: int
 
 
+#: Relative deviation from the median step within which two epochs are consecutive.
+STEP_JITTER = 0.01
+
+
 def fit_gauss_markov(errors, t_s) -> GaussMarkovFit:
     """Fit white scale and Gauss-Markov correlation to zero-mean error series.
 
@@ -320,7 +324,8 @@ def fit_gauss_markov(errors, t_s) -> GaussMarkovFit:
     ----------
     errors : (E, S) errors, one column per satellite, NaN where there is none.
     t_s : (E,) epoch times (s), increasing. Pairs are consecutive rows one median step
-        apart (a gap breaks the pair).
+        apart, within 1% (a gap breaks the pair; a receiver's jittered time tags, a phone's
+        29.999 s and 30.001 s steps, do not).
 
     The correlation is pooled over satellites without removing each series' mean: a
     satellite's slowly varying bias (multipath, residual delays) is correlated error, which
@@ -339,7 +344,7 @@ def fit_gauss_markov(errors, t_s) -> GaussMarkovFit:
     std = float(np.sqrt(np.mean(vals * vals)))
     steps = np.diff(t)
     dt = float(np.median(steps)) if steps.size else math.nan
-    pair = ok[:-1] & ok[1:] & (np.abs(steps - dt) <= 1e-6 * max(dt, 1.0))[:, None]
+    pair = ok[:-1] & ok[1:] & (np.abs(steps - dt) <= STEP_JITTER * dt)[:, None]
     a, b = z[:-1][pair], z[1:][pair]
     rho = float(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b))) if a.size else math.nan
     if not np.isfinite(rho):
