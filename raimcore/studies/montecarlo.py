@@ -50,7 +50,7 @@ from scipy import optimize, stats
 from .._validate import check_choice, check_int, check_positive, check_probability, check_range
 from ..algorithms import groupfusion as gfm
 from ..algorithms._groupfusion_common import as_groups
-from ..geometry import geodetic_to_ecef, los_enu
+from ..geometry import ecef_to_geodetic, enu_rotation, geodetic_to_ecef, los_enu
 from ..sky.constellations import SYSTEM_PREFIX, builtin
 
 __all__ = ["Study", "StudyResult", "run_study", "p_bias_m", "p_bias_group_m", "random_geometry",
@@ -174,6 +174,20 @@ def random_geometry(rng: np.random.Generator, n_runs: int, n_visible: int,
     Satellites are propagated by :func:`_positions_ecef_m` (bit for bit the constellation's
     own propagation, without its Kepler iterations on these circular orbits).
 
+    Speed, with the same random numbers drawn in the same order and the same geometries
+    returned, bit for bit:
+
+    * Screening: on circular orbits, a rough propagation (angles and their sines and
+      cosines in single precision) puts each line of sight's up component within about
+      1e-5 of the exact one; a draw with fewer than ``n_visible`` satellites above the
+      mask lowered by 1e-3 cannot be accepted and is rejected without the exact
+      propagation (most draws for 20 or more satellites).
+    * The other draws are examined in blocks, stopping once enough are accepted (with few
+      satellites nearly every draw is, and the rest of a round is never propagated).
+    * Visibility needs only the up component of each line of sight (the arithmetic of
+      :func:`raimcore.geometry.los_enu`); the full lines of sight are formed by
+      ``los_enu`` for the tracked satellites of accepted draws only.
+
     Returns
     -------
     h : (n_runs, n_visible, 3 + q) rows ``[-u_enu, 1_sys0, ..., 1_sys(q-1)]`` for the
@@ -181,11 +195,42 @@ def random_geometry(rng: np.random.Generator, n_runs: int, n_visible: int,
         satellites in constellation order (the first system's first).
     sys_idx : (n_runs, n_visible) index of each satellite's system in ``systems``.
     """
+    def screen(orbit, t, lat, lon, rx):
+        """(b,) bool: the draws that may have ``n_visible`` satellites above the mask.
+
+        Single precision from the angles on. The margin, 1e-3 in the sine of the
+        elevation, is 100 times the worst error: float32 angles up to 20 rad and their
+        sines and cosines, about 3e-6 rad, 130 m at a GEO orbit's radius, plus float32
+        positions (tens of metres), 1e-5 in the up component seen from 19,000 km or more
+        (the up direction, from the drawn latitude and longitude rather than from ``rx``
+        as ``los_enu`` finds it, is within 1e-9).
+        """
+        f32 = np.float32
+        r, ci, si = (orbit[k].astype(f32) for k in ("r", "ci", "si"))
+        tk = t[:, None] - orbit["toa"]
+        arg = (orbit["m0"] + orbit["n0"] * tk + orbit["argp"]).astype(f32)
+        om = (orbit["om0"] + orbit["om_rate"] * tk - orbit["om_toa"]).astype(f32)
+        xp, yp = r * np.cos(arg), r * np.sin(arg)
+        co, so = np.cos(om), np.sin(om)
+        rx = rx.astype(f32)
+        dx = xp * co - yp * ci * so - rx[:, :1]
+        dy = xp * so + yp * ci * co - rx[:, 1:2]
+        dz = yp * si - rx[:, 2:]
+        cos_lat = np.cos(lat)
+        up = [(v[:, None]).astype(f32) for v in (cos_lat * np.cos(lon), cos_lat * np.sin(lon),
+                                                 np.sin(lat))]
+        rise = dx * up[0] + dy * up[1] + dz * up[2]
+        above = rise >= (sin_mask - 1e-3) * np.sqrt(dx * dx + dy * dy + dz * dz)
+        return above.sum(axis=-1) >= n_visible
+
     systems = check_systems(systems)
     const = _constellation(systems)
     sys_of = np.array([systems.index(s) for s in const.systems], dtype=int)
     q = len(systems)
+    sin_mask = math.sin(math.radians(mask_deg))
+    orbit = _circular_terms(systems)
     out_h, out_sys, have = [], [], 0
+    seen = accepted = 0  # draws examined and accepted so far
     for _ in range(200):
         need = n_runs - have
         if need <= 0:
@@ -195,23 +240,38 @@ def random_geometry(rng: np.random.Generator, n_runs: int, n_visible: int,
         lat = np.arcsin(rng.uniform(-1.0, 1.0, m))
         lon = rng.uniform(-np.pi, np.pi, m)
         keys = rng.random((m, len(const)))
-        sv = _positions_ecef_m(systems, t)  # (m, S, 3)
         rx = geodetic_to_ecef(lat, lon, 0.0)
-        u, _ = los_enu(sv, rx)
-        vis = u[..., 2] >= math.sin(math.radians(mask_deg))
-        # Track a random n_visible of the visible ones: the smallest random keys.
-        k = np.where(vis, keys, np.inf)
-        pick = np.sort(np.argsort(k, axis=-1)[:, :n_visible], axis=-1)  # constellation order
-        ok = vis.sum(axis=-1) >= n_visible
-        sys_pick = sys_of[pick]
-        for j in range(q):
-            ok &= (sys_pick == j).sum(axis=-1) >= min_per_system
-        rows = np.flatnonzero(ok)[:need]
-        uu = np.take_along_axis(u[rows], pick[rows][..., None], axis=1)
-        clocks = (sys_pick[rows][..., None] == np.arange(q)).astype(float)
-        out_h.append(np.concatenate([-uu, clocks], axis=-1))
-        out_sys.append(sys_pick[rows])
-        have += rows.size
+        lo, found = 0, 0
+        while lo < m and found < need:
+            # As many draws as the runs still needed at the acceptance seen so far (at
+            # first, as many as the runs), at least 32.
+            size = max(32, math.ceil(1.25 * (need - found) * seen / accepted) if accepted
+                       else need - found)
+            sel = np.arange(lo, min(m, lo + size))
+            lo, seen = sel[-1] + 1, seen + sel.size
+            if orbit is not None:  # screening (see above)
+                sel = sel[screen(orbit, t[sel], lat[sel], lon[sel], rx[sel])]
+            up = enu_rotation(*ecef_to_geodetic(rx[sel])[:2])[:, 2]  # as los_enu rotates
+            sv = _positions_ecef_m(systems, t[sel])  # (b, S, 3)
+            d = sv - rx[sel, None, :]
+            vis = (np.einsum("...j,...sj->...s", up, d) / np.linalg.norm(d, axis=-1)
+                   >= sin_mask)
+            # Track a random n_visible of the visible ones: the smallest random keys.
+            k = np.where(vis, keys[sel], np.inf)
+            pick = np.sort(np.argsort(k, axis=-1)[:, :n_visible], axis=-1)  # const. order
+            ok = vis.sum(axis=-1) >= n_visible
+            sys_pick = sys_of[pick]
+            for j in range(q):
+                ok &= (sys_pick == j).sum(axis=-1) >= min_per_system
+            rows = np.flatnonzero(ok)[:need - found]
+            found += rows.size
+            accepted += rows.size
+            uu, _ = los_enu(np.take_along_axis(sv[rows], pick[rows][..., None], axis=1),
+                            rx[sel[rows]])
+            clocks = (sys_pick[rows][..., None] == np.arange(q)).astype(float)
+            out_h.append(np.concatenate([-uu, clocks], axis=-1))
+            out_sys.append(sys_pick[rows])
+        have += found
     else:  # pragma: no cover - only for absurd n_visible
         raise ValueError(f"n_visible={n_visible}: too few geometries with that many "
                          f"satellites above {mask_deg} deg")
