@@ -18,6 +18,10 @@ that BLAS never starts threads (they only spun against the other workers of a pr
 pool), GF's group statistics reused by QV on the same runs, and RS growing its consistent
 set by adding one satellite's terms to the set's normal-equation sums instead of solving
 the whole set again, every step of a run up to its next failure at once (running sums).
+For the full Table 2 of seed 004 in under 60 s on two workers, RS also tests its random
+draws lazily (the first few of every run; all of them only where none of those passes) and
+forms its running sums by one array addition a step rather than ``np.cumsum`` (slow along
+an axis this short): the same numbers, bit for bit.
 
 * :func:`select_groups` - the ``L1 = floor(L / K)`` groups at equal spacing ``K`` in the
   lexicographic list of all ``L = C(N, r)`` groups (seed 004 eqs. 1-2).
@@ -707,7 +711,9 @@ def rs_isolate(h, y, p_fa: float, rng: np.random.Generator, *, weights_lsq=None,
     The chi-square of a set grown by one satellite comes from the set's normal-equation
     sums plus that satellite's terms (the closed-form solve of :func:`_chi2_members`), not
     from a new solve of the whole set; the steps up to a run's next failure are tested
-    together (:func:`_grow_sets`).
+    together (:func:`_grow_sets`). The draws are tested lazily: the first
+    :data:`_RS_HEAD_DRAWS` of every run, and all of them only for the runs where none of
+    those passes (all are drawn first, so the random numbers are those of testing all).
 
     Parameters
     ----------
@@ -733,28 +739,27 @@ def rs_isolate(h, y, p_fa: float, rng: np.random.Generator, *, weights_lsq=None,
     w = (np.ones_like(y) if weights_lsq is None
          else np.broadcast_to(np.asarray(weights_lsq, dtype=float), y.shape))
     keys = rng.random((b, n_draws, n))
-    # Each draw's subset: the satellites with the `size` smallest keys.
-    member = (keys <= np.partition(keys, size - 1, axis=-1)[..., size - 1:size]).astype(float)
     feats = _features(h, y, w)  # (F, B, N)
-    sums = _member_sums(feats, member)  # (F, B, D)
-    theta, pdop, regular, n_sys = (v.reshape(b, n_draws) for v in
-                                   _solve_sums(sums.reshape(len(sums), -1), q))
-    dof = size - 3 - n_sys
-    ok = regular & (dof >= 1) & np.isfinite(pdop) & (pdop < PDOP_MAX) & (pdop > 0)
-    # >= 2 satellites of every system present in the run (see above).
     clk = h[..., 3:]
-    count = member @ clk  # (B, D, q)
-    present = clk.sum(axis=-2) > 0
-    sys_ok = np.all((count >= 2) | ~present[:, None, :], axis=-1)
-    ratio = np.where(ok & sys_ok, np.maximum(theta, 0.0) / _thresholds(dof, p_fa), np.inf)
+    # The first few draws of every run (nearly every run has a passing one among them),
+    # then every draw of the runs that have none (their first ones again, same results).
+    ratio, member, sums = _test_draws(keys[:, :_RS_HEAD_DRAWS], feats, clk, size, q, p_fa)
     passing = ratio <= 1.0
-    first = np.where(passing.any(axis=-1), np.argmax(passing, axis=-1),
-                     np.argmin(ratio, axis=-1))
     rows = np.arange(b)
+    first = np.argmax(passing, axis=-1)
     consistent = member[rows, first] > 0.0
+    set_sums = sums[:, rows, first]  # (F, B) of the consistent sets
+    rest = np.flatnonzero(~passing.any(axis=-1))
+    if rest.size:
+        ratio, member, sums = _test_draws(keys[rest], feats[:, rest], clk[rest], size, q,
+                                          p_fa)
+        passing = ratio <= 1.0
+        first = np.where(passing.any(axis=-1), np.argmax(passing, axis=-1),
+                         np.argmin(ratio, axis=-1))
+        consistent[rest] = member[np.arange(rest.size), first] > 0.0
+        set_sums[:, rest] = sums[:, np.arange(rest.size), first]
     isolated = np.zeros((b, n), dtype=bool)
     order = np.argsort(np.where(consistent, np.inf, rng.random((b, n))), axis=-1)
-    set_sums = np.ascontiguousarray(sums[:, rows, first])  # (F, B) of the consistent sets
     n_set = np.full(b, size)
     steps = n - size
     added = order[:, :steps]  # (B, steps) the satellite each step adds, per run
@@ -762,6 +767,30 @@ def rs_isolate(h, y, p_fa: float, rng: np.random.Generator, *, weights_lsq=None,
     table = special.chdtri(np.arange(1, n + 1), p_fa)  # T by dof (eq. 7)
     isolated[rows[:, None], added] = _grow_sets(set_sums, n_set, step_feats, q, table)
     return isolated
+
+
+#: Draws of every run RS tests first (:func:`rs_isolate`): one passes in nearly every run.
+_RS_HEAD_DRAWS = 4
+
+
+def _test_draws(keys, feats, clk, size, q, p_fa):
+    """RS's random subsets of ``size`` satellites, those of the smallest ``keys (R, D, N)``,
+    tested: ``theta / T`` ``(R, D)`` (inf where the subset is singular or has fewer than 2
+    satellites of a system present), the membership ``(R, D, N)`` and the normal-equation
+    sums ``(F, R, D)``. ``feats (F, R, N)``: :func:`_features`; ``clk (R, N, q)``."""
+    r, d, _ = keys.shape
+    member = (keys <= np.partition(keys, size - 1, axis=-1)[..., size - 1:size]).astype(float)
+    sums = _member_sums(feats, member)  # (F, R, D)
+    theta, pdop, regular, n_sys = (v.reshape(r, d) for v in
+                                   _solve_sums(sums.reshape(len(sums), -1), q))
+    dof = size - 3 - n_sys
+    ok = regular & (dof >= 1) & np.isfinite(pdop) & (pdop < PDOP_MAX) & (pdop > 0)
+    # >= 2 satellites of every system present in the run (see rs_isolate).
+    count = member @ clk  # (R, D, q)
+    present = clk.sum(axis=-2) > 0
+    sys_ok = np.all((count >= 2) | ~present[:, None, :], axis=-1)
+    ratio = np.where(ok & sys_ok, np.maximum(theta, 0.0) / _thresholds(dof, p_fa), np.inf)
+    return ratio, member, sums
 
 
 def _grow_sets(set_sums, n_set, step_feats, q, table):
@@ -790,18 +819,22 @@ def _grow_sets(set_sums, n_set, step_feats, q, table):
         pos = np.arange(steps - start[runs].min())
         step = start[runs, None] + pos  # (R, L); past a run's last step: padding
         valid = step < steps
-        terms = step_feats[:, runs[:, None], np.minimum(step, steps - 1)]  # (F, R, L)
-        running = np.concatenate([set_sums[:, runs, None], terms], axis=-1)
-        np.cumsum(running, axis=-1, out=running)  # [..., l + 1]: the trial of step l
-        stat, _, regular, n_sys = (v.reshape(step.shape) for v in _solve_sums(
-            running[..., 1:].reshape(f_n, -1), q))
+        # (F, L + 1, R): the set's sums, then each step's terms, made running sums by
+        # one addition a step (np.cumsum along an axis is much slower on arrays this thin)
+        running = np.empty((f_n, pos.size + 1, runs.size))
+        running[:, 0] = set_sums[:, runs]
+        running[:, 1:] = step_feats[:, runs[None, :], np.minimum(step, steps - 1).T]
+        for s in range(1, pos.size + 1):  # running[:, l + 1]: the trial of step l
+            np.add(running[:, s - 1], running[:, s], out=running[:, s])
+        stat, _, regular, n_sys = (v.reshape(step.shape[::-1]).T for v in _solve_sums(
+            running[:, 1:].reshape(f_n, -1), q))
         dof = n_set[runs, None] + pos + 1 - 3 - n_sys  # (clipped: padding goes beyond)
         fail = valid & regular & (stat > table[np.clip(dof, 1, len(table)) - 1])
         hit = fail.any(axis=-1)
         first = np.argmax(fail, axis=-1)[hit]  # the first failing step of a run, if any
         again = runs[hit]
         fails[again, start[again] + first] = True
-        set_sums[:, again] = running[:, np.flatnonzero(hit), first]  # the sums before it
+        set_sums[:, again] = running[:, first, np.flatnonzero(hit)]  # the sums before it
         n_set[again] += first
         start[again] += first + 1
         runs = again[start[again] < steps]
