@@ -663,10 +663,14 @@ def test_ctrl_c_during_monte_carlo_ends_with_one_line(workers, tmp_path):
     if not RAIM.exists():
         pytest.skip("the raim console script is not installed in this environment")
     out_dir = tmp_path / "mc"
+    # Ctrl-C as in a terminal: the command starts with SIGINT's default action even when
+    # the test runs as a background job (which inherits SIGINT ignored; Python then keeps
+    # it ignored and never raises KeyboardInterrupt).
     p = subprocess.Popen([str(RAIM), "montecarlo", "seed004-table2", "--runs", "5000",
                           "--workers", str(workers), "--no-progress", "--out", out_dir],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         start_new_session=True)  # its own group: we can see its workers
+                         start_new_session=True,  # its own group: we can see its workers
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 30.0
         while not out_dir.exists() and time.monotonic() < deadline:  # the study started
