@@ -19,9 +19,9 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:  # numpy, and the study's scipy: not for `raim --help`
+    import numpy as np
 
-if TYPE_CHECKING:  # the study imports scipy: not for `raim --help`
     from raimcore.studies.availability import AvailabilityResult
 
 #: Size of the standalone figure, px.
@@ -36,6 +36,8 @@ LEVEL_COLORS = ("#67000d", "#d7301f", "#fc8d59", "#fee08b", "#d9ef8b", "#91cf60"
 
 def level_index(pct) -> np.ndarray:
     """Class of each availability (%) in :data:`LEVELS_PCT` (NaN stays NaN)."""
+    import numpy as np
+
     pct = np.asarray(pct, dtype=float)
     idx = np.digitize(pct, LEVELS_PCT[1:]).astype(float)
     return np.where(np.isfinite(pct), idx, np.nan)
@@ -54,6 +56,8 @@ def _level_labels() -> list[str]:
 
 def coastline_trace() -> dict:
     """The coastlines: the 0.5 contour of the 1-degree land mask (lines only)."""
+    import numpy as np
+
     from .scene import land_mask
 
     land = land_mask()[::-1].astype(float)  # rows south -> north
@@ -97,6 +101,8 @@ def criteria_text(res: AvailabilityResult) -> str:
 def map_figure(res: AvailabilityResult, *, width_px: int = WIDTH_PX,
                height_px: int = HEIGHT_PX) -> dict:
     """The availability map as a Plotly figure dict."""
+    import numpy as np
+
     s = res.settings
     z = 100.0 * res.grid("availability")
     vpl = res.grid("vpl_median_m")

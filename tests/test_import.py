@@ -17,9 +17,9 @@ def test_import_raimcore_does_not_import_gui_libraries():
     assert out.stdout.strip() == ""
 
 
-def test_raim_help_imports_no_scipy_numba_or_gui():
+def test_raim_help_imports_no_numpy_scipy_numba_or_gui():
     """`raim --help` (with the app's subcommands registered) stays fast: it never imports
-    scipy, numba, viser or plotly (issue 17: <= 0.5 s)."""
+    numpy, scipy, numba, viser or plotly (issue 17: <= 0.5 s)."""
     code = (
         "import sys\n"
         "from raimcore.cli import main\n"
@@ -27,7 +27,7 @@ def test_raim_help_imports_no_scipy_numba_or_gui():
         "    main(['--help'])\n"
         "except SystemExit:\n"
         "    pass\n"
-        "heavy = ('scipy', 'numba', 'viser', 'plotly')\n"
+        "heavy = ('numpy', 'scipy', 'numba', 'viser', 'plotly')\n"
         "print('LOADED=' + ','.join(m for m in heavy if m in sys.modules))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
