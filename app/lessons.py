@@ -491,8 +491,7 @@ def _kind_no_false_alarms(c: Check, r: ScenarioResult) -> tuple[bool, str]:
 
 
 def _kind_fa_consistent(c: Check, r: ScenarioResult) -> tuple[bool, str]:
-    fa = r.summary.false_alarm
-    p_fa = r.scenario.p_fa if r.summary.p_fa is None else r.summary.p_fa  # ARAIM: its own
+    fa, p_fa = r.summary.false_alarm, r.p_fa  # ARAIM: its own budget
     if fa.n == 0:
         return False, "no fault-free epoch to count false alarms on"
     lo, hi = fa.ci95

@@ -177,13 +177,6 @@ def run_view(result: ScenarioResult) -> RunView:
         isolated_idx=np.asarray(out.isolated, dtype=int), extras=extras)
 
 
-def _run_p_fa(result: ScenarioResult) -> float:
-    """The false-alarm probability the run was tested at: the summary's (an algorithm's
-    own, as ARAIM's budgets), else the scenario's ``p_fa``."""
-    p = result.summary.p_fa
-    return result.scenario.p_fa if p is None else p
-
-
 def scene_run(result: ScenarioResult, view: RunView) -> SceneRun:
     data = result.measurements
     return SceneRun(t_s=data.t_s, sat_names=data.sat_names, pos_sv_ecef_m=data.pos_sv_ecef_m,
@@ -879,7 +872,7 @@ class Session:
         view = run_view(result)
         figs = {key: build(view)
                 for key, build in panels.panels_for(view, self.per_sat_pick.value)}
-        verdict = teaching.verdict(view, result.summary, _run_p_fa(result),
+        verdict = teaching.verdict(view, result.summary, result.p_fa,
                                    faults=result.scenario.faults)
         t2 = time.perf_counter()
         if self._closed:  # the tab closed while the figures were built: nothing to send
@@ -1092,7 +1085,7 @@ class Session:
             parts.append(pio.to_html(fig.to_plotly(self.i_epoch), full_html=False,
                                      include_plotlyjs=(k == 0)))
         verdict = (html.escape(teaching.verdict(self.view, self.result.summary,
-                                                _run_p_fa(self.result),
+                                                self.result.p_fa,
                                                 faults=self.result.scenario.faults))
                    if self.view is not None else "")
         name = html.escape(self.scenario.name)

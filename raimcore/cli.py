@@ -294,7 +294,7 @@ def format_summary(result) -> str:
            else f"sigma {s.sigma_m:g} m ")
         + f"({s.noise}"
         + (f", correlated over {s.noise_corr_s:g} s" if s.noise_corr_s > 0 else "")
-        + f"), p_fa {s.p_fa if sm.p_fa is None else sm.p_fa:.3g}, faults: {faults}",
+        + f"), p_fa {result.p_fa:.3g}, faults: {faults}",
         f"  unavailable epochs (no position, in no rate): {sm.unavailable_epochs}"
         + (f"; detect-only epochs (one redundant measurement: no isolation): "
            f"{sm.detect_only_epochs}" if sm.detect_only_epochs else ""),

@@ -46,6 +46,12 @@ class ScenarioResult:
     table: ResultTable
     summary: Summary
 
+    @property
+    def p_fa(self) -> float:
+        """The false-alarm probability per epoch the run was tested at: the summary's (an
+        algorithm's own where it has one, as ARAIM's budgets), else the scenario's."""
+        return self.scenario.p_fa if self.summary.p_fa is None else self.summary.p_fa
+
 
 def simulate(s: Scenario) -> tuple[Measurements, Truth]:
     """Stages 1 and 2: the measurements and the truth of scenario ``s``."""

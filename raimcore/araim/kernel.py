@@ -758,17 +758,16 @@ def pl_bisect(br: PlBracket, tol: float, max_iter: int = 0, rows=None):
         sel &= rows
     rows = np.flatnonzero(sel)
     steps = max_iter if max_iter > 0 else _MAX_STEPS
+    # With every cap a_j >= 1 the min(Qm, a) is Qm itself (Qm <= 1).
+    capped = not bool(np.all(br.a >= 1.0))
     nb = numba_kernels()
     ndtr_c = nb.scipy_ndtr() if nb is not None and rows.size else None
     if ndtr_c is not None:  # the same steps and decisions, compiled
         f64 = np.ascontiguousarray
         nb.bisect_rows(f64(br.c), f64(br.sig), f64(br.p), f64(br.a), f64(br.tgt), low, up,
-                       rows.astype(np.int64), float(tol), int(steps),
-                       not bool(np.all(br.a >= 1.0)), ndtr_c)
+                       rows.astype(np.int64), float(tol), int(steps), capped, ndtr_c)
         return np.where(br.ok, up, np.inf)
-    # The rows still searching are gathered once and compacted only when some finish;
-    # with every cap a_j >= 1 the min(Qm, a) is Qm itself (Qm <= 1).
-    capped = not bool(np.all(br.a >= 1.0))
+    # The rows still searching are gathered once and compacted only when some finish.
     lo, hi, tg = low[rows], up[rows], br.tgt[rows]
     cr, sr, pr = br.c[rows], br.sig[rows], br.p[rows]
     ar = br.a[rows] if capped else None
