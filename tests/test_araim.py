@@ -819,10 +819,10 @@ def test_fast_mode_merge_equals_row_merge():
             assert len(a) < len(fast)  # modes of satellite i merged
 
 
-def test_fast_path_equals_reference_on_the_four_system_recording(shared_data, monkeypatch):
-    """The real GPS + GAL + BDS + GLO recording (ESBC00DNK, 2020-06-25), 10 min at 30 s:
-    the kernel's inputs as the ``araim`` algorithm builds them (with exclusion), fast and
-    reference paths."""
+def recording_mhss_call(shared_data, monkeypatch):
+    """``(mhss, args, kwargs)``: the kernel and its inputs as the ``araim`` algorithm builds
+    them (exclusion on) for 10 minutes of the real GPS + GAL + BDS + GLO recording
+    (ESBC00DNK, 2020-06-25, 30 s)."""
     from raimcore import araim as kernel_pkg
     from raimcore.algorithms import araim as algo
     from raimcore.pipeline import run_scenario
@@ -843,6 +843,14 @@ def test_fast_path_equals_reference_on_the_four_system_recording(shared_data, mo
         algorithm="araim")
     run_scenario(s)
     (a, k), = captured
+    return real, a, k
+
+
+def test_fast_path_equals_reference_on_the_four_system_recording(shared_data, monkeypatch):
+    """The real GPS + GAL + BDS + GLO recording (ESBC00DNK, 2020-06-25), 10 min at 30 s:
+    the kernel's inputs as the ``araim`` algorithm builds them (with exclusion), fast and
+    reference paths."""
+    real, a, k = recording_mhss_call(shared_data, monkeypatch)
     assert a[0].shape[-2] >= 30 and a[0].shape[-1] == 7 and k["fde"]
     fast = real(*a, **k)
     ref = _mhss_module._mhss(*a, reference=True, **k)
@@ -915,26 +923,7 @@ def test_numba_equals_numpy(make, kw, monkeypatch):
 def test_numba_equals_numpy_on_the_four_system_recording(shared_data, monkeypatch):
     """10 minutes of the real GPS + GAL + BDS + GLO recording through the kernel as the
     ``araim`` algorithm calls it (exclusion on), compiled and numpy paths."""
-    from raimcore import araim as kernel_pkg
-    from raimcore.algorithms import araim as algo
-    from raimcore.pipeline import run_scenario
-    from raimcore.scenario import load_scenario
-
-    captured = []
-    real = kernel_pkg.mhss
-
-    def spy(*a, **k):
-        captured.append((a, k))
-        return real(*a, **k)
-
-    monkeypatch.setattr(algo.kernel, "mhss", spy)
-    s = load_scenario("default").replace(
-        source="rinex", obs=str(shared_data / "ESBC00DNK_R_20201770000_02H_30S_MO.rnx"),
-        nav=[str(shared_data / "ESBC00DNK_R_20201770000_01D_MN.rnx")],
-        systems=["GPS", "GAL", "BDS", "GLO"], faults=[], duration_s=600.0, step_s=30.0,
-        algorithm="araim")
-    run_scenario(s)
-    (a, k), = captured
+    real, a, k = recording_mhss_call(shared_data, monkeypatch)
     fast, plain = numba_and_numpy(monkeypatch, lambda: real(*a, **k))
     assert_same_result(fast, plain)
     assert np.all(fast.status == "ok") and fast.modes.valid.sum(axis=1).min() > 300

@@ -559,6 +559,27 @@ def _bank_case(case: str):
     return d, model, noise, sys_idx, masks, x
 
 
+def _bank_steps(case, kernels):
+    """One bank per kernel from :func:`_bank_case`'s cloud, each with its own generator of
+    the same seed; returns ``(banks, rngs, steps)``, ``steps`` yielding, for 10 steps (a
+    5 s gap at the 4th, a clock restart at the 7th), ``{kernel: StepResult}``."""
+    d, model, noise, sys_idx, masks, x = _bank_case(case)
+    banks = {k: pf.ParticleBank(x, model, drift_var=0.3 if model.has_drift else 0.0,
+                                kernel=k) for k in kernels}
+    rngs = {k: np.random.default_rng(5) for k in kernels}
+
+    def steps():
+        for k in range(1, 11):
+            dt = 5.0 if k == 4 else 1.0
+            reset = pf.CLOCK_RESET_SD_M**2 if k == 7 else 0.0
+            yield {name: bank.step(dt, d.pos_sv_ecef_m[k][None, None],
+                                   d.pr_m[k][None, None], masks[None], sys_idx, noise,
+                                   rngs[name], q_scale=2.0, reset_var=reset)
+                   for name, bank in banks.items()}
+
+    return banks, rngs, steps()
+
+
 @pytest.mark.parametrize("case", ["one system, student-t", "two systems, gaussian",
                                   "cv, mixture, a satellite unused", "no drift, scaled noise"])
 def test_fast_bank_step_agrees_with_the_reference(case):
@@ -568,17 +589,8 @@ def test_fast_bank_step_agrees_with_the_reference(case):
     and resampling decisions: the same random numbers in the same order, the same
     formulas; the differences are rounding (the squared ranges are summed in another
     order: nanometres)."""
-    d, model, noise, sys_idx, masks, x = _bank_case(case)
-    banks = {k: pf.ParticleBank(x, model, drift_var=0.3 if model.has_drift else 0.0,
-                                kernel=k) for k in pf.KERNELS}
-    rngs = {k: np.random.default_rng(5) for k in pf.KERNELS}
-    for k in range(1, 11):
-        dt = 5.0 if k == 4 else 1.0
-        reset = pf.CLOCK_RESET_SD_M**2 if k == 7 else 0.0
-        out = {name: bank.step(dt, d.pos_sv_ecef_m[k][None, None], d.pr_m[k][None, None],
-                               masks[None], sys_idx, noise, rngs[name], q_scale=2.0,
-                               reset_var=reset)
-               for name, bank in banks.items()}
+    banks, rngs, steps = _bank_steps(case, pf.KERNELS)
+    for out in steps:
         fast, ref = out["fast"], out["reference"]
         np.testing.assert_array_equal(fast.resampled, ref.resampled)
         np.testing.assert_allclose(fast.log_pred, ref.log_pred, rtol=0, atol=1e-6)
@@ -676,20 +688,10 @@ def test_numba_bank_step_agrees_with_the_fast_kernel(case):
     same cloud and seed (two realisations x 7 filters x 300 particles, a 5 s gap and a
     clock restart on the way): the same random numbers, the same particles, weights,
     predictive likelihoods, estimates and resampling decisions to rounding."""
-    d, model, noise, sys_idx, masks, x = _bank_case(case)
-    kernels = ("numba", "fast")
-    banks = {k: pf.ParticleBank(x, model, drift_var=0.3 if model.has_drift else 0.0,
-                                kernel=k) for k in kernels}
+    banks, rngs, steps = _bank_steps(case, ("numba", "fast"))
     assert banks["numba"].kernel == "numba"
-    rngs = {k: np.random.default_rng(5) for k in kernels}
     resampled = 0
-    for k in range(1, 11):
-        dt = 5.0 if k == 4 else 1.0
-        reset = pf.CLOCK_RESET_SD_M**2 if k == 7 else 0.0
-        out = {name: bank.step(dt, d.pos_sv_ecef_m[k][None, None], d.pr_m[k][None, None],
-                               masks[None], sys_idx, noise, rngs[name], q_scale=2.0,
-                               reset_var=reset)
-               for name, bank in banks.items()}
+    for out in steps:
         _assert_steps_agree(out["numba"], out["fast"], banks["numba"], banks["fast"])
         resampled += out["numba"].resampled.sum()
     assert 0 < resampled < 10 * 14  # resampling exercised, not on every step
